@@ -204,11 +204,22 @@ impl<T: Real, const N: usize> Rls<T, N> {
             self.stats.rejected = self.stats.rejected.saturating_add(1);
             return Err(Error::NonFinite("measurement"));
         }
+        let e = y - self.theta.dot(x);
+        self.update_with_error(x, e)?;
+        Ok(e)
+    }
+
+    /// One update of a recursive prediction-error method: `ψ` is the gradient of the
+    /// prediction with respect to `θ` and `e` the prediction error computed by the caller
+    /// (for a model linear in `θ`, `ψ = x` and `e = y - θᵀx`, which is [`Rls::update`]).
+    /// On `Err` nothing changed.
+    #[inline]
+    pub fn update_with_error(&mut self, psi: &SVector<T, N>, e: T) -> Result<(), Error> {
+        let x = psi;
         if x.iter().any(|v| !v.is_finite()) {
             self.stats.rejected = self.stats.rejected.saturating_add(1);
             return Err(Error::NonFinite("regressor"));
         }
-        let e = y - self.theta.dot(x);
         // Time update (selective forgetting) on a copy: nothing changes before the checks.
         let mut d = self.d;
         let mut capped = false;
@@ -262,7 +273,7 @@ impl<T: Real, const N: usize> Rls<T, N> {
             self.reset_covariance();
         }
         self.stats.updates = self.stats.updates.saturating_add(1);
-        Ok(e)
+        Ok(())
     }
 }
 
