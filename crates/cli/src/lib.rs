@@ -1,1 +1,6 @@
-//! placeholder: being written
+//! The host side of boucwen: analysis of records, identification, the paper's
+//! experiments (`sweep`), diagnosis of measured data, reports and plots. The `boucwen`
+//! binary is a thin command-line layer over this library.
+
+pub mod analysis;
+pub mod fit;

@@ -1,0 +1,634 @@
+//! Identification on the host: the paper's RLS procedure and an output-error fit.
+//!
+//! Both produce a [`HostModel`]: the extended model (AR order 2, eq. 9's form) plus
+//! harmonic branches of the drive (eqs. 6/7) and, for `diagnose`, an optional drift term
+//! (a polynomial in time added at the output). Models are simulated by the core's own
+//! [`EnhancedParams::step`], so what is fitted here is exactly what the compensator and
+//! the firmware run.
+//!
+//! ## The paper's procedure ([`fit_paper_rls`])
+//! Section 3 as published: running-sum regressors (eq. 10), `P(0) = I`, no forgetting,
+//! `A1 = 0.01, A = 0.005, γ = β = 0.001` at the start, one pass over the fitting data
+//! ([`boucwen_core::ident::Mode::Paper`]). It minimises the one-step (equation) error, not
+//! the free-run error the paper reports, and its `A1`/`A` pair is collinear (see the core's
+//! docs).
+//!
+//! ## Output-error fit ([`fit_oe`])
+//! Minimises the free-run simulation error directly. By the homogeneity of the Bouc–Wen
+//! equation, `h(A, A0, γ, β) = A·h₁` with `h₁` the hysteresis of `A = 1`, `A0/A`, `γ', β`
+//! (`γ' = sgn(A)·γ`), so for fixed *outer* parameters `φ = (a1, a2, A0/A, γ', β)` the output
+//! ```text
+//! ŷ = G(z)·[A1·u - A·h₁ + Σ_n (α_s sin nθ + α_c cos nθ)] + drift(t),   G = 1/(1 - a1 z⁻¹ - a2 z⁻²)
+//! ```
+//! is linear in `(A1, A, α, drift)`: they are solved exactly by least squares for every `φ`
+//! (variable projection), and `φ` is found by a coarse grid (AR resonance, loop saturation)
+//! followed by Levenberg–Marquardt. Unstable AR parts are rejected.
+
+use crate::analysis;
+use boucwen_core::ident::{IdentConfig, Identifier};
+use boucwen_core::model::{
+    BoucWenParams, EnhancedParams, ExtendedParams, HarmonicBranch, Model, ar_is_stable,
+};
+use boucwen_core::signal::{Oscillator, sin_cos};
+use nalgebra::{DMatrix, DVector};
+use std::fmt;
+
+/// A harmonic branch of a host model.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Branch {
+    /// Harmonic order `n ≥ 2`.
+    pub order: u32,
+    /// Weight of `sin(2π n f k Ts)`.
+    pub alpha_s: f64,
+    /// Weight of `cos(2π n f k Ts)`.
+    pub alpha_c: f64,
+    /// The branch's AR part (`Q = 2`; zero except in the paper's RLS procedure).
+    pub ar: [f64; 2],
+}
+
+/// A model identified on the host.
+#[derive(Clone, Debug, PartialEq)]
+pub struct HostModel {
+    /// The extended model (`P = 2`).
+    pub ext: ExtendedParams<f64, 2>,
+    /// Drive frequency `f` of the branches (Hz).
+    pub drive_hz: f64,
+    /// Harmonic branches.
+    pub branches: Vec<Branch>,
+    /// Drift: coefficients of `1, t, t², …` (t in s from the record's start) added to the output.
+    pub drift: Vec<f64>,
+}
+
+/// Why a fit failed.
+#[derive(Clone, Debug, PartialEq)]
+pub enum FitError {
+    /// Fewer samples than the fit needs.
+    TooFewSamples {
+        /// Samples available for fitting.
+        have: usize,
+        /// Samples needed.
+        need: usize,
+    },
+    /// A harmonic at or above Nyquist, or an order below 2.
+    BadHarmonic(u32),
+    /// More branches than supported.
+    TooManyBranches(usize),
+    /// A core error (parameters, frequencies).
+    Core(boucwen_core::Error),
+    /// No candidate gave a stable model that could be solved.
+    NoStableModel,
+}
+
+impl fmt::Display for FitError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            FitError::TooFewSamples { have, need } => {
+                write!(f, "too few samples to fit: {have} available, at least {need} needed")
+            }
+            FitError::BadHarmonic(n) => write!(f, "harmonic order {n} is below 2 or at/above Nyquist"),
+            FitError::TooManyBranches(m) => write!(f, "{m} harmonic branches: at most {MAX_BRANCHES} are supported"),
+            FitError::Core(e) => write!(f, "{e}"),
+            FitError::NoStableModel => write!(f, "no stable model fits the data"),
+        }
+    }
+}
+
+impl std::error::Error for FitError {}
+
+impl From<boucwen_core::Error> for FitError {
+    fn from(e: boucwen_core::Error) -> Self {
+        FitError::Core(e)
+    }
+}
+
+/// The most branches a host model may have.
+pub const MAX_BRANCHES: usize = 4;
+
+impl HostModel {
+    /// The number of free parameters (AR, hysteresis, branch weights and AR, drift).
+    pub fn parameter_count(&self) -> usize {
+        7 + self.branches.iter().map(|b| if b.ar == [0.0, 0.0] { 2 } else { 4 }).sum::<usize>()
+            + self.drift.len()
+    }
+
+    /// A short name: "extended", "enhanced(3)", "extended+drift", ….
+    pub fn name(&self) -> String {
+        let mut s = if self.branches.is_empty() {
+            "extended".to_string()
+        } else {
+            let orders: Vec<String> = self.branches.iter().map(|b| b.order.to_string()).collect();
+            format!("enhanced({})", orders.join(","))
+        };
+        if !self.drift.is_empty() {
+            s.push_str("+drift");
+        }
+        s
+    }
+
+    fn enhanced<const M: usize>(&self, ts: f64) -> Result<EnhancedParams<f64, 2, 2, M>, FitError> {
+        let drive = Oscillator::new(self.drive_hz, ts)?;
+        Ok(EnhancedParams {
+            base: self.ext,
+            branches: core::array::from_fn(|m| {
+                let b = &self.branches[m];
+                HarmonicBranch { order: b.order, alpha_s: b.alpha_s, alpha_c: b.alpha_c, ar: b.ar }
+            }),
+            drive,
+        })
+    }
+
+    /// Free-run simulation from rest (`h = 0`, past outputs 0, phase 0) for the input `u`.
+    /// An unstable model's output grows without bound; it is returned as computed.
+    pub fn simulate(&self, u: &[f64], ts: f64) -> Result<Vec<f64>, FitError> {
+        fn run<const M: usize>(m: &HostModel, u: &[f64], ts: f64) -> Result<Vec<f64>, FitError> {
+            let p = m.enhanced::<M>(ts)?;
+            let mut s = p.initial_state();
+            Ok(u.iter().map(|&uk| p.step(&mut s, uk)).collect())
+        }
+        let mut y = match self.branches.len() {
+            0 => run::<0>(self, u, ts)?,
+            1 => run::<1>(self, u, ts)?,
+            2 => run::<2>(self, u, ts)?,
+            3 => run::<3>(self, u, ts)?,
+            4 => run::<4>(self, u, ts)?,
+            m => return Err(FitError::TooManyBranches(m)),
+        };
+        if !self.drift.is_empty() {
+            for (k, v) in y.iter_mut().enumerate() {
+                *v += poly(&self.drift, k as f64 * ts);
+            }
+        }
+        Ok(y)
+    }
+}
+
+fn poly(c: &[f64], t: f64) -> f64 {
+    c.iter().rev().fold(0.0, |acc, &ci| acc * t + ci)
+}
+
+/// What to fit.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ModelSpec {
+    /// Drive frequency (needed for branches).
+    pub drive_hz: f64,
+    /// Orders of the harmonic branches (empty: the extended model).
+    pub harmonics: Vec<u32>,
+    /// Degree of the drift polynomial (`None`: no drift term).
+    pub drift_degree: Option<usize>,
+}
+
+impl ModelSpec {
+    /// The extended model.
+    pub fn extended(drive_hz: f64) -> Self {
+        Self { drive_hz, harmonics: vec![], drift_degree: None }
+    }
+
+    /// The enhanced model with the given branches.
+    pub fn enhanced(drive_hz: f64, harmonics: &[u32]) -> Self {
+        Self { drive_hz, harmonics: harmonics.to_vec(), drift_degree: None }
+    }
+
+    fn check(&self, ts: f64) -> Result<(), FitError> {
+        if self.harmonics.len() > MAX_BRANCHES {
+            return Err(FitError::TooManyBranches(self.harmonics.len()));
+        }
+        for &n in &self.harmonics {
+            if n < 2 || n as f64 * self.drive_hz >= 0.5 / ts {
+                return Err(FitError::BadHarmonic(n));
+            }
+        }
+        Oscillator::new(self.drive_hz, ts)?;
+        Ok(())
+    }
+}
+
+/// The paper's section 3 identification: one pass of RLS with the running-sum regressors
+/// over `u[..fit_end]`, `y[..fit_end]`. At most one branch (the paper's models (6)/(7),
+/// branch AR order 2 on `y_n[k-1], y_n[k-2]`).
+pub fn fit_paper_rls(u: &[f64], y: &[f64], ts: f64, fit_end: usize, spec: &ModelSpec) -> Result<HostModel, FitError> {
+    spec.check(ts)?;
+    let need = 100;
+    if fit_end < need || u.len() < fit_end || y.len() < fit_end {
+        return Err(FitError::TooFewSamples { have: fit_end.min(u.len()).min(y.len()), need });
+    }
+    let drive = Oscillator::new(spec.drive_hz, ts)?;
+    let (ext, branches) = match spec.harmonics.as_slice() {
+        [] => {
+            let mut id = Identifier::<f64, 2, 0, 0, 7>::new(IdentConfig::paper::<2>(), drive, [])?;
+            for k in 0..fit_end {
+                id.update(u[k], y[k])?;
+            }
+            (id.extended(), vec![])
+        }
+        [n] => {
+            let mut id = Identifier::<f64, 2, 2, 1, 11>::new(IdentConfig::paper::<2>(), drive, [*n])?;
+            for k in 0..fit_end {
+                id.update(u[k], y[k])?;
+            }
+            let e = id.enhanced();
+            let b = e.branches[0];
+            (e.base, vec![Branch { order: b.order, alpha_s: b.alpha_s, alpha_c: b.alpha_c, ar: b.ar }])
+        }
+        more => return Err(FitError::TooManyBranches(more.len())),
+    };
+    Ok(HostModel { ext, drive_hz: spec.drive_hz, branches, drift: vec![] })
+}
+
+/// Options of the output-error fit.
+#[derive(Clone, Debug, PartialEq)]
+pub struct OeOptions {
+    /// At most this many samples (from the start) enter the criterion; the fit simulates
+    /// from sample 0 to the end of that window.
+    pub max_samples: usize,
+    /// Samples at the start left out of the criterion (start-up transient).
+    pub skip: usize,
+    /// Levenberg–Marquardt iterations per start.
+    pub max_iter: usize,
+}
+
+impl Default for OeOptions {
+    fn default() -> Self {
+        Self { max_samples: 4000, skip: 200, max_iter: 40 }
+    }
+}
+
+/// The outer parameters: AR (a1, a2) and the loop shape (A0/A, γ', β).
+type Phi = [f64; 5];
+
+struct Problem<'a> {
+    u: &'a [f64],
+    y: &'a [f64],
+    ts: f64,
+    end: usize,
+    skip: usize,
+    spec: &'a ModelSpec,
+    /// sin/cos of each branch, sample by sample.
+    branch_sc: Vec<Vec<(f64, f64)>>,
+}
+
+struct Solution {
+    theta: DVector<f64>,
+    residual: Vec<f64>,
+    cost: f64,
+}
+
+impl<'a> Problem<'a> {
+    fn new(u: &'a [f64], y: &'a [f64], ts: f64, end: usize, skip: usize, spec: &'a ModelSpec) -> Result<Self, FitError> {
+        let drive = Oscillator::new(spec.drive_hz, ts)?;
+        let branch_sc = spec
+            .harmonics
+            .iter()
+            .map(|&n| (0..end).map(|k| sin_cos::<f64>(drive.phase_at(k as u64).wrapping_mul(n as u64))).collect())
+            .collect();
+        Ok(Self { u, y, ts, end, skip, spec, branch_sc })
+    }
+
+    fn columns(&self) -> usize {
+        2 + 2 * self.spec.harmonics.len() + self.spec.drift_degree.map_or(0, |d| d + 1)
+    }
+
+    /// Projected solution for `φ`, or `None` if `φ` gives an unstable or degenerate model.
+    fn solve(&self, phi: &Phi) -> Option<Solution> {
+        let (a1, a2) = (phi[0], phi[1]);
+        if !ar_is_stable(&[a1, a2]) {
+            return None;
+        }
+        let shape = BoucWenParams { a1: 0.0, a: 1.0, a0: phi[2], gamma: phi[3], beta: phi[4] };
+        let ncol = self.columns();
+        let n = self.end;
+        // Filtered columns, built sample by sample: G·u, -G·h₁, G·sin, G·cos, drift basis.
+        let mut z1 = vec![0.0; ncol];
+        let mut z2 = vec![0.0; ncol];
+        let mut xtx = DMatrix::<f64>::zeros(ncol, ncol);
+        let mut xty = DVector::<f64>::zeros(ncol);
+        let mut rows: Vec<f64> = Vec::with_capacity((n - self.skip) * ncol);
+        let (mut h, mut u_prev) = (0.0, 0.0);
+        let mut x = vec![0.0; ncol];
+        for k in 0..n {
+            let uk = self.u[k];
+            let mut c = 0;
+            x[c] = uk;
+            c += 1;
+            h = shape.h_next(h, uk - u_prev);
+            if !h.is_finite() || h.abs() > 1e12 {
+                return None;
+            }
+            x[c] = -h;
+            c += 1;
+            for sc in &self.branch_sc {
+                x[c] = sc[k].0;
+                x[c + 1] = sc[k].1;
+                c += 2;
+            }
+            let nfilt = c;
+            for i in 0..nfilt {
+                let v = a1 * z1[i] + a2 * z2[i] + x[i];
+                z2[i] = z1[i];
+                z1[i] = v;
+            }
+            if let Some(d) = self.spec.drift_degree {
+                let t = k as f64 * self.ts;
+                let mut p = 1.0;
+                for _ in 0..=d {
+                    z1[c] = p;
+                    p *= t;
+                    c += 1;
+                }
+            }
+            u_prev = uk;
+            if k >= self.skip {
+                let yk = self.y[k];
+                for i in 0..ncol {
+                    let zi = z1[i];
+                    xty[i] += zi * yk;
+                    for j in 0..=i {
+                        xtx[(i, j)] += zi * z1[j];
+                    }
+                }
+                rows.extend_from_slice(&z1[..ncol]);
+            }
+        }
+        for i in 0..ncol {
+            for j in 0..i {
+                xtx[(j, i)] = xtx[(i, j)];
+            }
+        }
+        // Tiny ridge relative to the diagonal keeps a nearly collinear column harmless.
+        let scale = (0..ncol).map(|i| xtx[(i, i)]).fold(0.0, f64::max);
+        for i in 0..ncol {
+            xtx[(i, i)] += 1e-12 * scale + 1e-300;
+        }
+        let theta = xtx.cholesky()?.solve(&xty);
+        if theta.iter().any(|t| !t.is_finite()) {
+            return None;
+        }
+        let mut residual = Vec::with_capacity(n - self.skip);
+        let mut cost = 0.0;
+        for (r, k) in rows.chunks_exact(ncol).zip(self.skip..n) {
+            let e = self.y[k] - r.iter().zip(theta.iter()).map(|(a, b)| a * b).sum::<f64>();
+            cost += e * e;
+            residual.push(e);
+        }
+        Some(Solution { theta, residual, cost })
+    }
+
+    fn model(&self, phi: &Phi, theta: &DVector<f64>) -> HostModel {
+        let a1_gain = theta[0];
+        let (amp, mut c) = (theta[1], 2);
+        let sgn = if amp < 0.0 { -1.0 } else { 1.0 };
+        let ext = ExtendedParams {
+            bw: BoucWenParams { a1: a1_gain, a: amp, a0: phi[2] * amp, gamma: sgn * phi[3], beta: phi[4] },
+            ar: [phi[0], phi[1]],
+        };
+        let mut branches = vec![];
+        for &order in &self.spec.harmonics {
+            branches.push(Branch { order, alpha_s: theta[c], alpha_c: theta[c + 1], ar: [0.0, 0.0] });
+            c += 2;
+        }
+        let drift = match self.spec.drift_degree {
+            Some(d) => (0..=d).map(|i| theta[c + i]).collect(),
+            None => vec![],
+        };
+        HostModel { ext, drive_hz: self.spec.drive_hz, branches, drift }
+    }
+
+    fn levenberg_marquardt(&self, mut phi: Phi, max_iter: usize) -> Option<(Phi, Solution)> {
+        let mut sol = self.solve(&phi)?;
+        let mut mu = 1e-3;
+        for _ in 0..max_iter {
+            let m = sol.residual.len();
+            let mut jac = DMatrix::<f64>::zeros(m, 5);
+            for p in 0..5 {
+                let step = 1e-7 * phi[p].abs().max(1e-2);
+                let mut q = phi;
+                q[p] += step;
+                let Some(s) = self.solve(&q) else {
+                    // At the stability boundary: differentiate backwards instead.
+                    q[p] = phi[p] - step;
+                    let s = self.solve(&q)?;
+                    for i in 0..m {
+                        jac[(i, p)] = (sol.residual[i] - s.residual[i]) / step;
+                    }
+                    continue;
+                };
+                for i in 0..m {
+                    jac[(i, p)] = (s.residual[i] - sol.residual[i]) / step;
+                }
+            }
+            let r = DVector::from_column_slice(&sol.residual);
+            let jtj = jac.transpose() * &jac;
+            let g = jac.transpose() * r;
+            let mut improved = false;
+            while mu < 1e12 {
+                let mut a = jtj.clone();
+                for i in 0..5 {
+                    a[(i, i)] += mu * (jtj[(i, i)] + 1e-12);
+                }
+                let Some(ch) = a.cholesky() else {
+                    mu *= 4.0;
+                    continue;
+                };
+                let delta = ch.solve(&(-&g));
+                let mut cand = phi;
+                for i in 0..5 {
+                    cand[i] += delta[i];
+                }
+                match self.solve(&cand) {
+                    Some(s) if s.cost < sol.cost => {
+                        let rel = (sol.cost - s.cost) / sol.cost.max(1e-300);
+                        phi = cand;
+                        sol = s;
+                        mu = (mu / 3.0).max(1e-12);
+                        improved = rel > 1e-10;
+                        break;
+                    }
+                    _ => mu *= 4.0,
+                }
+            }
+            if !improved {
+                break;
+            }
+        }
+        Some((phi, sol))
+    }
+}
+
+/// AR coefficients of a resonance at `f_hz` with damping ratio `zeta` at interval `ts`.
+fn resonance_ar(f_hz: f64, zeta: f64, ts: f64) -> [f64; 2] {
+    let w = std::f64::consts::TAU * f_hz * ts;
+    if zeta < 1.0 {
+        let r = (-zeta * w).exp();
+        [2.0 * r * (w * (1.0 - zeta * zeta).sqrt()).cos(), -r * r]
+    } else {
+        let s = (zeta * zeta - 1.0).sqrt();
+        let (r1, r2) = ((-(zeta - s) * w).exp(), (-(zeta + s) * w).exp());
+        [r1 + r2, -r1 * r2]
+    }
+}
+
+/// The result of a fit: the model and its fitting cost (RMS over the criterion window).
+#[derive(Clone, Debug)]
+pub struct Fit {
+    /// The model.
+    pub model: HostModel,
+    /// RMS of the free-run error over the criterion window (µm).
+    pub rms_fit: f64,
+}
+
+/// Output-error (simulation-error) fit on `u[..fit_end]`, `y[..fit_end]`; `starts` are extra
+/// models to start from (e.g. the extended fit when fitting an enhanced model).
+pub fn fit_oe(
+    u: &[f64],
+    y: &[f64],
+    ts: f64,
+    fit_end: usize,
+    spec: &ModelSpec,
+    starts: &[HostModel],
+    opt: &OeOptions,
+) -> Result<Fit, FitError> {
+    spec.check(ts)?;
+    let end = fit_end.min(opt.max_samples).min(u.len()).min(y.len());
+    let need = opt.skip + 200;
+    if end < need {
+        return Err(FitError::TooFewSamples { have: end, need });
+    }
+    let prob = Problem::new(u, y, ts, end, opt.skip, spec)?;
+    let u_amp = u[..end].iter().fold(0.0f64, |m, v| m.max(v.abs())).max(1e-9);
+
+    // Stage A: structures. A single-frequency record pins only one complex gain of G,
+    // which many resonances match, so structures are ranked with a loop present (a middle
+    // shape): the loop's harmonics, passing through G, tell them apart.
+    let nyq = 0.5 / ts;
+    let mid_shape = |ar: [f64; 2]| -> Phi { [ar[0], ar[1], 0.0, 0.75 / u_amp, 2.25 / u_amp] };
+    let mut ar_cands: Vec<(f64, [f64; 2])> = vec![];
+    for i in 0..16 {
+        let f_r = 5.0 * (nyq * 0.9 / 5.0f64).powf(i as f64 / 15.0);
+        for zeta in [0.01, 0.03, 0.1, 0.3, 1.0, 3.0] {
+            let ar = resonance_ar(f_r, zeta, ts);
+            if let Some(s) = prob.solve(&mid_shape(ar)) {
+                ar_cands.push((s.cost, ar));
+            }
+        }
+    }
+    ar_cands.sort_by(|a, b| a.0.total_cmp(&b.0));
+
+    // Stage B: loop shapes on the best structures.
+    let mut cands: Vec<(f64, Phi)> = vec![];
+    for &(_, ar) in ar_cands.iter().take(6) {
+        for kappa in [0.3, 1.0, 3.0, 10.0] {
+            for q in [-0.5, 0.5] {
+                let sum = kappa / u_amp;
+                let phi = [ar[0], ar[1], 0.0, sum * q / 2.0, sum * (1.0 - q / 2.0)];
+                if let Some(s) = prob.solve(&phi) {
+                    cands.push((s.cost, phi));
+                }
+            }
+        }
+    }
+    for m in starts {
+        let amp = m.ext.bw.a;
+        if amp != 0.0 {
+            let sgn = amp.signum();
+            let phi = [m.ext.ar[0], m.ext.ar[1], m.ext.bw.a0 / amp, sgn * m.ext.bw.gamma, m.ext.bw.beta];
+            if let Some(s) = prob.solve(&phi) {
+                cands.push((s.cost * 0.999, phi)); // prefer a given start on ties
+            }
+        }
+    }
+    cands.sort_by(|a, b| a.0.total_cmp(&b.0));
+
+    // Stage C: Levenberg–Marquardt from the best few.
+    let mut best: Option<(Phi, Solution)> = None;
+    for &(_, phi) in cands.iter().take(3) {
+        if let Some((p, s)) = prob.levenberg_marquardt(phi, opt.max_iter) {
+            if best.as_ref().is_none_or(|b| s.cost < b.1.cost) {
+                best = Some((p, s));
+            }
+        }
+    }
+    let (phi, sol) = best.ok_or(FitError::NoStableModel)?;
+    let model = prob.model(&phi, &sol.theta);
+    Ok(Fit { model, rms_fit: (sol.cost / sol.residual.len() as f64).sqrt() })
+}
+
+/// Free-run RMS error of `model` on `y[from..]` (simulated from sample 0). Non-finite if
+/// the model is unstable.
+pub fn free_run_rms(model: &HostModel, u: &[f64], y: &[f64], ts: f64, from: usize) -> Result<f64, FitError> {
+    let sim = model.simulate(u, ts)?;
+    Ok(analysis::rms_diff(&sim[from..], &y[from..]))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use boucwen_core::signal::Sine;
+
+    fn truth() -> HostModel {
+        let w0 = std::f64::consts::TAU * 0.07;
+        HostModel {
+            ext: ExtendedParams {
+                bw: BoucWenParams { a1: 20.0, a: 6.0, a0: 0.5, gamma: 2.0, beta: 3.0 },
+                ar: [2.0 * 0.97 * w0.cos(), -0.97 * 0.97],
+            },
+            drive_hz: 23.0,
+            branches: vec![Branch { order: 3, alpha_s: 0.8, alpha_c: -0.5, ar: [0.0, 0.0] }],
+            drift: vec![],
+        }
+    }
+
+    fn drive(f: f64, n: usize) -> Vec<f64> {
+        let mut s = Sine::new(1.0, Oscillator::new(f, 1e-3).unwrap());
+        (0..n).map(|_| s.next_sample()).collect()
+    }
+
+    #[test]
+    fn the_projected_prediction_is_the_core_simulation() {
+        // The VarPro prediction for the fitted φ must equal the core model's free run.
+        let t = truth();
+        let u = drive(23.0, 6000);
+        let y = t.simulate(&u, 1e-3).unwrap();
+        let fit = fit_oe(&u, &y, 1e-3, 4000, &ModelSpec::enhanced(23.0, &[3]), &[], &OeOptions::default()).unwrap();
+        let sim = fit.model.simulate(&u, 1e-3).unwrap();
+        let rms_crit = analysis::rms_diff(&sim[200..4000], &y[200..4000]);
+        assert!((rms_crit - fit.rms_fit).abs() < 1e-9 * (1.0 + fit.rms_fit), "{rms_crit} vs {}", fit.rms_fit);
+    }
+
+    #[test]
+    fn output_error_fit_reproduces_the_model_it_was_given_in_free_run() {
+        let t = truth();
+        let u = drive(23.0, 10_000);
+        let y = t.simulate(&u, 1e-3).unwrap();
+        let amp = analysis::rms(&y[5000..]);
+        let fit = fit_oe(&u, &y, 1e-3, 5000, &ModelSpec::enhanced(23.0, &[3]), &[], &OeOptions::default()).unwrap();
+        let held_out = free_run_rms(&fit.model, &u, &y, 1e-3, 5000).unwrap();
+        assert!(held_out < 1e-3 * amp, "held-out free-run RMS {held_out} of {amp}");
+        // Without the branch, the harmonic cannot be explained.
+        let ext = fit_oe(&u, &y, 1e-3, 5000, &ModelSpec::extended(23.0), &[], &OeOptions::default()).unwrap();
+        let held_out_ext = free_run_rms(&ext.model, &u, &y, 1e-3, 5000).unwrap();
+        assert!(held_out_ext > 10.0 * held_out, "{held_out_ext} vs {held_out}");
+    }
+
+    #[test]
+    fn drift_term_is_fitted() {
+        let mut t = truth();
+        t.branches.clear();
+        t.drift = vec![0.5, 0.3];
+        let u = drive(11.0, 8000);
+        let y = t.simulate(&u, 1e-3).unwrap();
+        let spec = ModelSpec { drive_hz: 11.0, harmonics: vec![], drift_degree: Some(1) };
+        let fit = fit_oe(&u, &y, 1e-3, 4000, &spec, &[], &OeOptions::default()).unwrap();
+        assert!((fit.model.drift[1] - 0.3).abs() < 1e-3, "{:?}", fit.model.drift);
+        let r = free_run_rms(&fit.model, &u, &y, 1e-3, 4000).unwrap();
+        assert!(r < 1e-2, "held-out {r} fit {} model {:?}", fit.rms_fit, fit.model);
+    }
+
+    #[test]
+    fn bad_specs_are_rejected() {
+        let u = drive(23.0, 5000);
+        let y = u.clone();
+        let e = fit_oe(&u, &y, 1e-3, 4000, &ModelSpec::enhanced(23.0, &[25]), &[], &OeOptions::default());
+        assert_eq!(e.err(), Some(FitError::BadHarmonic(25)));
+        let e = fit_oe(&u, &y, 1e-3, 100, &ModelSpec::extended(23.0), &[], &OeOptions::default());
+        assert!(matches!(e, Err(FitError::TooFewSamples { .. })));
+    }
+}
