@@ -137,6 +137,12 @@ impl HostModel {
         })
     }
 
+    /// The model with one branch as a core enhanced model (tests).
+    #[cfg(test)]
+    pub(crate) fn enhanced_for_test(&self) -> EnhancedParams<f64, 2, 2, 1> {
+        self.enhanced::<1>(1e-3).expect("valid test model")
+    }
+
     /// Free-run simulation from rest (`h = 0`, past outputs 0, phase 0) for the input `u`.
     /// An unstable model's output grows without bound; it is returned as computed.
     pub fn simulate(&self, u: &[f64], ts: f64) -> Result<Vec<f64>, FitError> {

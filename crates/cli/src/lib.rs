@@ -3,5 +3,6 @@
 //! binary is a thin command-line layer over this library.
 
 pub mod analysis;
+pub mod experiment;
 pub mod fit;
 pub mod plot;

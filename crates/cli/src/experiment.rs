@@ -1,0 +1,180 @@
+//! The paper's two experiments on any plant: identification (section 3) and compensation
+//! (section 5), as building blocks for `sweep`.
+//!
+//! A plant is anything that takes `u[k]` (V) and returns `y[k]` (µm) at the end of the
+//! sample interval: the virtual bimorph, a board, or a model.
+
+use crate::analysis;
+use crate::fit::HostModel;
+use boucwen_core::compensator::{
+    Compensator, CompensatorConfig, HarmonicSpec, PhaseRule, Saturation, harmonic_response,
+};
+use boucwen_core::rls::RlsConfig;
+use boucwen_core::signal::{Oscillator, Sine};
+
+/// The identification drive of eq. (13), `u[k] = amplitude·sin(2π f k Ts)`, `n` samples.
+pub fn sine(amplitude: f64, freq_hz: f64, ts: f64, n: usize) -> Result<Vec<f64>, boucwen_core::Error> {
+    let mut s = Sine::new(amplitude, Oscillator::new(freq_hz, ts)?);
+    Ok((0..n).map(|_| s.next_sample()).collect())
+}
+
+/// The reference amplitude of eq. (25): `α = Σ y u / Σ u²` over an identification record.
+pub fn eq25_amplitude(u: &[f64], y: &[f64]) -> f64 {
+    let num: f64 = u.iter().zip(y).map(|(a, b)| a * b).sum();
+    let den: f64 = u.iter().map(|a| a * a).sum();
+    if den > 0.0 { num / den } else { 0.0 }
+}
+
+/// Everything recorded in a tracking run.
+#[derive(Clone, Debug, Default)]
+pub struct Trace {
+    /// Reference `d[k]` (µm).
+    pub d: Vec<f64>,
+    /// Applied input `u[k]` (V).
+    pub u: Vec<f64>,
+    /// Measured output `y[k]` (µm).
+    pub y: Vec<f64>,
+}
+
+impl Trace {
+    /// RMS of `y - d` from sample `from` on.
+    pub fn rmse_after(&self, from: usize) -> f64 {
+        let from = from.min(self.y.len());
+        analysis::rms_diff(&self.y[from..], &self.d[from..])
+    }
+
+    /// The tracking error `y - d`.
+    pub fn error(&self) -> Vec<f64> {
+        self.y.iter().zip(&self.d).map(|(y, d)| y - d).collect()
+    }
+}
+
+/// Settings shared by the compensation runs.
+#[derive(Clone, Copy, Debug)]
+pub struct CompensationSettings {
+    /// The driver's input range (V).
+    pub saturation: Saturation<f64>,
+    /// Forgetting factor of the harmonic RLS.
+    pub lambda: f64,
+    /// Initial covariance of the harmonic RLS.
+    pub p0: f64,
+    /// Bound on each cancellation amplitude (V).
+    pub uc_max: f64,
+    /// How the plant's response at `n·f` is obtained.
+    pub phase_rule: PhaseRule<f64>,
+}
+
+impl Default for CompensationSettings {
+    fn default() -> Self {
+        Self {
+            saturation: Saturation::symmetric(10.0),
+            lambda: 0.999,
+            p0: 1e-2,
+            uc_max: 2.0,
+            phase_rule: PhaseRule::Model,
+        }
+    }
+}
+
+/// Tracks `d[k] = α sin(2π f k Ts)` for `n` samples with the compensator built from
+/// `model`, cancelling the harmonics `orders` (empty: `u_f` alone, eqs. 16/17; otherwise the
+/// proposed law, eqs. 20/21).
+pub fn track(
+    plant: &mut dyn FnMut(f64) -> f64,
+    model: &HostModel,
+    orders: &[u32],
+    alpha: f64,
+    freq_hz: f64,
+    ts: f64,
+    n: usize,
+    set: &CompensationSettings,
+) -> Result<Trace, boucwen_core::Error> {
+    fn run<const M: usize>(
+        plant: &mut dyn FnMut(f64) -> f64,
+        model: &HostModel,
+        orders: &[u32],
+        alpha: f64,
+        freq_hz: f64,
+        ts: f64,
+        n: usize,
+        set: &CompensationSettings,
+    ) -> Result<Trace, boucwen_core::Error> {
+        let drive = Oscillator::new(freq_hz, ts)?;
+        let harmonics: [HarmonicSpec<f64>; M] = core::array::from_fn(|m| HarmonicSpec {
+            order: orders[m],
+            response: harmonic_response(&model.ext, orders[m], freq_hz, ts, set.phase_rule),
+        });
+        let mut comp = Compensator::new(CompensatorConfig {
+            model: model.ext,
+            drive,
+            harmonics,
+            rls: RlsConfig::with_forgetting(set.lambda, set.p0),
+            saturation: set.saturation,
+            uc_max: set.uc_max,
+        })?;
+        let mut reference = Sine::new(alpha, drive);
+        let mut t = Trace { d: Vec::with_capacity(n), u: Vec::with_capacity(n), y: Vec::with_capacity(n) };
+        let mut y_prev = None;
+        for _ in 0..n {
+            let d = reference.next_sample();
+            let out = comp.step(d, y_prev)?;
+            let y = plant(out.u);
+            y_prev = Some(y);
+            t.d.push(d);
+            t.u.push(out.u);
+            t.y.push(y);
+        }
+        Ok(t)
+    }
+    match orders.len() {
+        0 => run::<0>(plant, model, orders, alpha, freq_hz, ts, n, set),
+        1 => run::<1>(plant, model, orders, alpha, freq_hz, ts, n, set),
+        2 => run::<2>(plant, model, orders, alpha, freq_hz, ts, n, set),
+        _ => Err(boucwen_core::Error::OutOfRange("harmonic orders (at most 2 are cancelled at once)")),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::fit::Branch;
+    use boucwen_core::model::{BoucWenParams, ExtendedParams};
+
+    #[test]
+    fn eq25_is_the_least_squares_gain() {
+        let u = sine(1.0, 5.0, 1e-3, 1000).unwrap();
+        let y: Vec<f64> = u.iter().map(|v| 17.0 * v + 3.0).collect();
+        assert!((eq25_amplitude(&u, &y) - 17.0).abs() < 1e-9);
+    }
+
+    #[test]
+    fn proposed_law_beats_uf_alone_on_a_model_with_a_harmonic() {
+        let w0 = std::f64::consts::TAU * 0.07;
+        let ext = ExtendedParams {
+            bw: BoucWenParams { a1: 20.0, a: 6.0, a0: 0.5, gamma: 2.0, beta: 3.0 },
+            ar: [2.0 * 0.97 * w0.cos(), -0.97 * 0.97],
+        };
+        let plant_model = HostModel {
+            ext,
+            drive_hz: 23.0,
+            branches: vec![Branch { order: 3, alpha_s: 0.1, alpha_c: 0.05, ar: [0.0, 0.0] }],
+            drift: vec![],
+        };
+        let controller_model = HostModel { branches: vec![], ..plant_model.clone() };
+        let n = 15_000;
+        let u_probe = sine(1.0, 23.0, 1e-3, n).unwrap();
+        let y_probe = plant_model.simulate(&u_probe, 1e-3).unwrap();
+        let alpha = eq25_amplitude(&u_probe, &y_probe) * 0.2;
+        let set = CompensationSettings::default();
+        let mut rmse = vec![];
+        for orders in [&[][..], &[3][..]] {
+            // The plant: the model itself, stepped sample by sample.
+            let p = plant_model.enhanced_for_test();
+            let mut s = boucwen_core::model::Model::initial_state(&p);
+            let mut plant = |u: f64| boucwen_core::model::Model::step(&p, &mut s, u);
+            let t = track(&mut plant, &controller_model, orders, alpha, 23.0, 1e-3, n, &set).unwrap();
+            rmse.push(t.rmse_after(5000) / alpha);
+        }
+        assert!(rmse[0] > 0.05 && rmse[1] < 0.01, "{rmse:?}");
+    }
+}
