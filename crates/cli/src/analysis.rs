@@ -165,9 +165,7 @@ mod tests {
     use super::*;
 
     fn signal(n: usize, ts: f64, parts: &[(f64, f64, f64)]) -> Vec<f64> {
-        (0..n)
-            .map(|k| parts.iter().map(|&(f, a, p)| a * (TAU * f * k as f64 * ts + p).sin()).sum())
-            .collect()
+        (0..n).map(|k| parts.iter().map(|&(f, a, p)| a * (TAU * f * k as f64 * ts + p).sin()).sum()).collect()
     }
 
     #[test]

@@ -86,7 +86,9 @@ impl fmt::Display for FitError {
                 write!(f, "too few samples to fit: {have} available, at least {need} needed")
             }
             FitError::BadHarmonic(n) => write!(f, "harmonic order {n} is below 2 or at/above Nyquist"),
-            FitError::TooManyBranches(m) => write!(f, "{m} harmonic branches: at most {MAX_BRANCHES} are supported"),
+            FitError::TooManyBranches(m) => {
+                write!(f, "{m} harmonic branches: at most {MAX_BRANCHES} are supported")
+            }
             FitError::Core(e) => write!(f, "{e}"),
             FitError::NoStableModel => write!(f, "no stable model fits the data"),
         }
@@ -211,7 +213,13 @@ impl ModelSpec {
 /// The paper's section 3 identification: one pass of RLS with the running-sum regressors
 /// over `u[..fit_end]`, `y[..fit_end]`. At most one branch (the paper's models (6)/(7),
 /// branch AR order 2 on `y_n[k-1], y_n[k-2]`).
-pub fn fit_paper_rls(u: &[f64], y: &[f64], ts: f64, fit_end: usize, spec: &ModelSpec) -> Result<HostModel, FitError> {
+pub fn fit_paper_rls(
+    u: &[f64],
+    y: &[f64],
+    ts: f64,
+    fit_end: usize,
+    spec: &ModelSpec,
+) -> Result<HostModel, FitError> {
     spec.check(ts)?;
     let need = 100;
     if fit_end < need || u.len() < fit_end || y.len() < fit_end {
@@ -279,12 +287,21 @@ struct Solution {
 }
 
 impl<'a> Problem<'a> {
-    fn new(u: &'a [f64], y: &'a [f64], ts: f64, end: usize, skip: usize, spec: &'a ModelSpec) -> Result<Self, FitError> {
+    fn new(
+        u: &'a [f64],
+        y: &'a [f64],
+        ts: f64,
+        end: usize,
+        skip: usize,
+        spec: &'a ModelSpec,
+    ) -> Result<Self, FitError> {
         let drive = Oscillator::new(spec.drive_hz, ts)?;
         let branch_sc = spec
             .harmonics
             .iter()
-            .map(|&n| (0..end).map(|k| sin_cos::<f64>(drive.phase_at(k as u64).wrapping_mul(n as u64))).collect())
+            .map(|&n| {
+                (0..end).map(|k| sin_cos::<f64>(drive.phase_at(k as u64).wrapping_mul(n as u64))).collect()
+            })
             .collect();
         Ok(Self { u, y, ts, end, skip, spec, branch_sc })
     }
@@ -593,7 +610,8 @@ mod tests {
         let t = truth();
         let u = drive(23.0, 6000);
         let y = t.simulate(&u, 1e-3).unwrap();
-        let fit = fit_oe(&u, &y, 1e-3, 4000, &ModelSpec::enhanced(23.0, &[3]), &[], &OeOptions::default()).unwrap();
+        let fit =
+            fit_oe(&u, &y, 1e-3, 4000, &ModelSpec::enhanced(23.0, &[3]), &[], &OeOptions::default()).unwrap();
         let sim = fit.model.simulate(&u, 1e-3).unwrap();
         let rms_crit = analysis::rms_diff(&sim[200..4000], &y[200..4000]);
         assert!((rms_crit - fit.rms_fit).abs() < 1e-9 * (1.0 + fit.rms_fit), "{rms_crit} vs {}", fit.rms_fit);
@@ -605,7 +623,8 @@ mod tests {
         let u = drive(23.0, 10_000);
         let y = t.simulate(&u, 1e-3).unwrap();
         let amp = analysis::rms(&y[5000..]);
-        let fit = fit_oe(&u, &y, 1e-3, 5000, &ModelSpec::enhanced(23.0, &[3]), &[], &OeOptions::default()).unwrap();
+        let fit =
+            fit_oe(&u, &y, 1e-3, 5000, &ModelSpec::enhanced(23.0, &[3]), &[], &OeOptions::default()).unwrap();
         let held_out = free_run_rms(&fit.model, &u, &y, 1e-3, 5000).unwrap();
         assert!(held_out < 1e-3 * amp, "held-out free-run RMS {held_out} of {amp}");
         // Without the branch, the harmonic cannot be explained.

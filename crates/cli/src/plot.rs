@@ -5,7 +5,8 @@
 use std::fmt::Write as _;
 
 /// Colours for successive series.
-pub const PALETTE: [&str; 8] = ["#1f77b4", "#d62728", "#2ca02c", "#ff7f0e", "#9467bd", "#8c564b", "#e377c2", "#7f7f7f"];
+pub const PALETTE: [&str; 8] =
+    ["#1f77b4", "#d62728", "#2ca02c", "#ff7f0e", "#9467bd", "#8c564b", "#e377c2", "#7f7f7f"];
 
 /// One line (and/or markers).
 #[derive(Clone, Debug)]
@@ -29,7 +30,15 @@ pub struct Series {
 impl Series {
     /// A solid line in the `i`-th palette colour.
     pub fn line(label: impl Into<String>, x: Vec<f64>, y: Vec<f64>, i: usize) -> Self {
-        Self { label: label.into(), x, y, color: PALETTE[i % PALETTE.len()].into(), dashed: false, markers: false, line: true }
+        Self {
+            label: label.into(),
+            x,
+            y,
+            color: PALETTE[i % PALETTE.len()].into(),
+            dashed: false,
+            markers: false,
+            line: true,
+        }
     }
 
     /// Line with markers.
@@ -104,11 +113,7 @@ impl Chart {
         if !v.is_finite() {
             return None;
         }
-        if self.log_y {
-            if v > 0.0 { Some(v.log10()) } else { None }
-        } else {
-            Some(v)
-        }
+        if self.log_y { if v > 0.0 { Some(v.log10()) } else { None } } else { Some(v) }
     }
 
     /// The chart as an SVG document.
@@ -129,7 +134,13 @@ impl Chart {
         let span = |v: &[f64]| {
             let lo = v.iter().cloned().fold(f64::INFINITY, f64::min);
             let hi = v.iter().cloned().fold(f64::NEG_INFINITY, f64::max);
-            if !lo.is_finite() { (0.0, 1.0) } else if hi - lo <= 0.0 { (lo - 0.5, hi + 0.5) } else { (lo, hi) }
+            if !lo.is_finite() {
+                (0.0, 1.0)
+            } else if hi - lo <= 0.0 {
+                (lo - 0.5, hi + 0.5)
+            } else {
+                (lo, hi)
+            }
         };
         let (x0, x1) = self.x_range.unwrap_or_else(|| span(&xs));
         let (y0, y1) = match self.y_range {
@@ -137,7 +148,12 @@ impl Chart {
             Some(r) => r,
             None => {
                 let (a, b) = span(&ys);
-                if self.log_y { (a.floor(), b.ceil()) } else { let m = 0.05 * (b - a); (a - m, b + m) }
+                if self.log_y {
+                    (a.floor(), b.ceil())
+                } else {
+                    let m = 0.05 * (b - a);
+                    (a - m, b + m)
+                }
             }
         };
         let px = |x: f64| ml + (x - x0) / (x1 - x0) * pw;
@@ -148,22 +164,58 @@ impl Chart {
             r#"<svg xmlns="http://www.w3.org/2000/svg" width="{w}" height="{h}" viewBox="0 0 {w} {h}" font-family="sans-serif" font-size="12">"#
         );
         let _ = write!(out, r#"<rect width="{w}" height="{h}" fill="white"/>"#);
-        let _ = write!(out, r#"<text x="{}" y="22" text-anchor="middle" font-size="14">{}</text>"#, w / 2.0, esc(&self.title));
+        let _ = write!(
+            out,
+            r#"<text x="{}" y="22" text-anchor="middle" font-size="14">{}</text>"#,
+            w / 2.0,
+            esc(&self.title)
+        );
         // Grid and ticks.
         for t in nice_ticks(x0, x1, 8) {
             let x = px(t);
-            let _ = write!(out, r##"<line x1="{x:.1}" y1="{mt}" x2="{x:.1}" y2="{:.1}" stroke="#e5e5e5"/>"##, mt + ph);
-            let _ = write!(out, r#"<text x="{x:.1}" y="{:.1}" text-anchor="middle">{}</text>"#, mt + ph + 16.0, fmt_tick(t));
+            let _ = write!(
+                out,
+                r##"<line x1="{x:.1}" y1="{mt}" x2="{x:.1}" y2="{:.1}" stroke="#e5e5e5"/>"##,
+                mt + ph
+            );
+            let _ = write!(
+                out,
+                r#"<text x="{x:.1}" y="{:.1}" text-anchor="middle">{}</text>"#,
+                mt + ph + 16.0,
+                fmt_tick(t)
+            );
         }
-        let yticks = if self.log_y { (y0.ceil() as i64..=y1.floor() as i64).map(|e| e as f64).collect() } else { nice_ticks(y0, y1, 6) };
+        let yticks = if self.log_y {
+            (y0.ceil() as i64..=y1.floor() as i64).map(|e| e as f64).collect()
+        } else {
+            nice_ticks(y0, y1, 6)
+        };
         for t in yticks {
             let y = py(t);
-            let _ = write!(out, r##"<line x1="{ml}" y1="{y:.1}" x2="{:.1}" y2="{y:.1}" stroke="#e5e5e5"/>"##, ml + pw);
+            let _ = write!(
+                out,
+                r##"<line x1="{ml}" y1="{y:.1}" x2="{:.1}" y2="{y:.1}" stroke="#e5e5e5"/>"##,
+                ml + pw
+            );
             let label = if self.log_y { format!("1e{}", t as i64) } else { fmt_tick(t) };
-            let _ = write!(out, r#"<text x="{:.1}" y="{:.1}" text-anchor="end">{label}</text>"#, ml - 6.0, y + 4.0);
+            let _ = write!(
+                out,
+                r#"<text x="{:.1}" y="{:.1}" text-anchor="end">{label}</text>"#,
+                ml - 6.0,
+                y + 4.0
+            );
         }
-        let _ = write!(out, r##"<rect x="{ml}" y="{mt}" width="{pw}" height="{ph}" fill="none" stroke="#333"/>"##);
-        let _ = write!(out, r#"<text x="{:.1}" y="{:.1}" text-anchor="middle">{}</text>"#, ml + pw / 2.0, h - 12.0, esc(&self.x_label));
+        let _ = write!(
+            out,
+            r##"<rect x="{ml}" y="{mt}" width="{pw}" height="{ph}" fill="none" stroke="#333"/>"##
+        );
+        let _ = write!(
+            out,
+            r#"<text x="{:.1}" y="{:.1}" text-anchor="middle">{}</text>"#,
+            ml + pw / 2.0,
+            h - 12.0,
+            esc(&self.x_label)
+        );
         let _ = write!(
             out,
             r#"<text x="16" y="{:.1}" text-anchor="middle" transform="rotate(-90 16 {:.1})">{}</text>"#,
@@ -171,15 +223,17 @@ impl Chart {
             mt + ph / 2.0,
             esc(&self.y_label)
         );
-        let _ = write!(out, r#"<clipPath id="plot"><rect x="{ml}" y="{mt}" width="{pw}" height="{ph}"/></clipPath><g clip-path="url(#plot)">"#);
+        let _ = write!(
+            out,
+            r#"<clipPath id="plot"><rect x="{ml}" y="{mt}" width="{pw}" height="{ph}"/></clipPath><g clip-path="url(#plot)">"#
+        );
         for s in &self.series {
             // Invalid points (NaN, or ≤ 0 on a log axis) break the line.
-            let pts: Vec<Option<(f64, f64)>> = s
-                .x
-                .iter()
-                .zip(&s.y)
-                .map(|(&x, &y)| if x.is_finite() { self.ty(y).map(|ty| (px(x), py(ty))) } else { None })
-                .collect();
+            let pts: Vec<Option<(f64, f64)>> =
+                s.x.iter()
+                    .zip(&s.y)
+                    .map(|(&x, &y)| if x.is_finite() { self.ty(y).map(|ty| (px(x), py(ty))) } else { None })
+                    .collect();
             if s.line {
                 let mut d = String::with_capacity(pts.len() * 14);
                 let mut pen_down = false;
@@ -194,7 +248,11 @@ impl Chart {
                 }
                 if d.contains('L') {
                     let dash = if s.dashed { r#" stroke-dasharray="6,4""# } else { "" };
-                    let _ = write!(out, r#"<path d="{d}" fill="none" stroke="{}" stroke-width="1.4"{dash}/>"#, s.color);
+                    let _ = write!(
+                        out,
+                        r#"<path d="{d}" fill="none" stroke="{}" stroke-width="1.4"{dash}/>"#,
+                        s.color
+                    );
                 }
             }
             if s.markers {
@@ -209,7 +267,14 @@ impl Chart {
         for s in self.series.iter().filter(|s| !s.label.is_empty()) {
             let lx = ml + pw - 190.0;
             let dash = if s.dashed { r#" stroke-dasharray="6,4""# } else { "" };
-            let _ = write!(out, r#"<line x1="{lx}" y1="{:.1}" x2="{}" y2="{:.1}" stroke="{}" stroke-width="2"{dash}/>"#, ly - 4.0, lx + 22.0, ly - 4.0, s.color);
+            let _ = write!(
+                out,
+                r#"<line x1="{lx}" y1="{:.1}" x2="{}" y2="{:.1}" stroke="{}" stroke-width="2"{dash}/>"#,
+                ly - 4.0,
+                lx + 22.0,
+                ly - 4.0,
+                s.color
+            );
             let _ = write!(out, r#"<text x="{}" y="{ly:.1}">{}</text>"#, lx + 28.0, esc(&s.label));
             ly += 16.0;
         }

@@ -407,7 +407,11 @@ mod tests {
         }
     }
 
-    fn config<const M: usize>(model: ExtendedParams<f64, 2>, f: f64, harmonics: [HarmonicSpec<f64>; M]) -> CompensatorConfig<f64, 2, M> {
+    fn config<const M: usize>(
+        model: ExtendedParams<f64, 2>,
+        f: f64,
+        harmonics: [HarmonicSpec<f64>; M],
+    ) -> CompensatorConfig<f64, 2, M> {
         CompensatorConfig {
             model,
             drive: Oscillator::new(f, TS).unwrap(),
@@ -455,11 +459,15 @@ mod tests {
         let (mut h, mut uf_prev, mut d1, mut d2, mut d3) = (0.0f64, 0.0f64, 0.0, 0.0, 0.0);
         for k in 0..400 {
             let t = k as f64 * TS;
-            let d = 0.8 * (core::f64::consts::TAU * 3.0 * t).sin() + 0.3 * (core::f64::consts::TAU * 11.0 * t).sin();
+            let d = 0.8 * (core::f64::consts::TAU * 3.0 * t).sin()
+                + 0.3 * (core::f64::consts::TAU * 11.0 * t).sin();
             let base = d - d1 - c1 * d2 - c2 * d3 + h;
-            let q_up = base - bw.a * uf_prev - bw.a0 * uf_prev + bw.gamma * h.abs() * uf_prev + bw.beta * uf_prev * h;
+            let q_up = base - bw.a * uf_prev - bw.a0 * uf_prev
+                + bw.gamma * h.abs() * uf_prev
+                + bw.beta * uf_prev * h;
             let u_up = q_up / (bw.a1 - bw.a - bw.a0 + bw.gamma * h.abs() + bw.beta * h);
-            let q_dn = base - bw.a * uf_prev + bw.a0 * uf_prev + bw.gamma * h.abs() * uf_prev - bw.beta * uf_prev * h;
+            let q_dn = base - bw.a * uf_prev + bw.a0 * uf_prev + bw.gamma * h.abs() * uf_prev
+                - bw.beta * uf_prev * h;
             let u_dn = q_dn / (bw.a1 - bw.a + bw.a0 + bw.gamma * h.abs() - bw.beta * h);
             let want = if u_up - uf_prev >= 0.0 { u_up } else { u_dn };
             assert!(u_dn - uf_prev < 0.0 || u_up - uf_prev >= 0.0, "k={k}: both inconsistent");
@@ -475,7 +483,11 @@ mod tests {
     #[test]
     fn the_exact_model_tracks_a_23_hz_sine() {
         let p = plant();
-        let enh = EnhancedParams::<f64, 2, 0, 0> { base: p, branches: [], drive: Oscillator::new(23.0, TS).unwrap() };
+        let enh = EnhancedParams::<f64, 2, 0, 0> {
+            base: p,
+            branches: [],
+            drive: Oscillator::new(23.0, TS).unwrap(),
+        };
         let mut comp = Compensator::new(config(p, 23.0, [])).unwrap();
         let amplitude = 20.0;
         let err = track(&mut comp, &enh, amplitude, 20_000);
@@ -543,7 +555,8 @@ mod tests {
     #[test]
     fn both_and_neither_cases_follow_the_documented_rule() {
         // A1 - m_+ = -0.1 < 0 < A1 - m_- = 1.1 at h = 0: a locally non-monotone model.
-        let model = ExtendedParams { bw: BoucWenParams { a1: 1.0, a: 0.5, a0: 0.6, gamma: 0.0, beta: 0.0 }, ar: [] };
+        let model =
+            ExtendedParams { bw: BoucWenParams { a1: 1.0, a: 0.5, a0: 0.6, gamma: 0.0, beta: 0.0 }, ar: [] };
         let inv = DirectInverse::new(model).unwrap();
         let sat = Saturation::symmetric(100.0);
         // d > 0: Δ_+ = d/(-0.1) < 0 and Δ_- = d/1.1 > 0: neither is consistent → hold.
@@ -560,7 +573,8 @@ mod tests {
     #[test]
     fn the_guard_bounds_a_vanishing_denominator() {
         // A1 - m_+ = A1 - A - A0 = 0 exactly: the rising branch is flat.
-        let model = ExtendedParams { bw: BoucWenParams { a1: 1.0, a: 0.5, a0: 0.5, gamma: 0.0, beta: 0.0 }, ar: [] };
+        let model =
+            ExtendedParams { bw: BoucWenParams { a1: 1.0, a: 0.5, a0: 0.5, gamma: 0.0, beta: 0.0 }, ar: [] };
         let inv = DirectInverse::new(model).unwrap();
         let mut st = InverseState::default();
         let out = inv.step(&mut st, 1e-6, &Saturation::symmetric(1e12));
@@ -588,7 +602,9 @@ mod tests {
     #[test]
     fn non_finite_inputs_are_rejected_without_change() {
         let p = plant();
-        let mut comp = Compensator::new(config(p, 23.0, [HarmonicSpec { order: 3, response: Complex::new(1.0, 0.0) }])).unwrap();
+        let mut comp =
+            Compensator::new(config(p, 23.0, [HarmonicSpec { order: 3, response: Complex::new(1.0, 0.0) }]))
+                .unwrap();
         comp.step(1.0, None).unwrap();
         let before = comp.clone();
         assert_eq!(comp.step(f64::NAN, Some(0.0)), Err(Error::NonFinite("d")));

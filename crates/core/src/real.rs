@@ -70,21 +70,9 @@ impl Real for f64 {
 }
 
 impl Real for f32 {
-    const SIN_COEFFS: &'static [f32] = &[
-        1.0,
-        -1.0 / 6.0,
-        1.0 / 120.0,
-        -1.0 / 5040.0,
-        1.0 / 362_880.0,
-    ];
-    const COS_COEFFS: &'static [f32] = &[
-        1.0,
-        -1.0 / 2.0,
-        1.0 / 24.0,
-        -1.0 / 720.0,
-        1.0 / 40_320.0,
-        -1.0 / 3_628_800.0,
-    ];
+    const SIN_COEFFS: &'static [f32] = &[1.0, -1.0 / 6.0, 1.0 / 120.0, -1.0 / 5040.0, 1.0 / 362_880.0];
+    const COS_COEFFS: &'static [f32] =
+        &[1.0, -1.0 / 2.0, 1.0 / 24.0, -1.0 / 720.0, 1.0 / 40_320.0, -1.0 / 3_628_800.0];
     const MIN_POSITIVE: f32 = f32::MIN_POSITIVE;
 
     #[inline(always)]

@@ -265,8 +265,8 @@ impl<T: Real, const N: usize> Rls<T, N> {
         }
         self.d = d;
         let theta = self.theta + k * (e / alpha);
-        let healthy = theta.iter().all(|t| t.is_finite())
-            && self.d.iter().all(|&dj| dj.is_finite() && dj > T::zero());
+        let healthy =
+            theta.iter().all(|t| t.is_finite()) && self.d.iter().all(|&dj| dj.is_finite() && dj > T::zero());
         if healthy {
             self.theta = theta;
         } else {
@@ -377,7 +377,10 @@ mod tests {
             rls.update(&SVector::<f64, 3>::new(1.0, f64::INFINITY, 0.0), 1.0),
             Err(Error::NonFinite("regressor"))
         );
-        assert_eq!(rls.update(&SVector::<f64, 3>::new(1e300, 1e300, 1e300), 1e300), Err(Error::NonFinite("prediction error")));
+        assert_eq!(
+            rls.update(&SVector::<f64, 3>::new(1e300, 1e300, 1e300), 1e300),
+            Err(Error::NonFinite("prediction error"))
+        );
         assert_eq!(*rls.theta(), theta);
         assert_eq!(rls.covariance(), p);
         assert_eq!(rls.stats().rejected, 3);
@@ -412,7 +415,9 @@ mod tests {
 
     #[test]
     fn rejects_bad_configuration() {
-        let bad = |lambda, p0, p_max| Rls::<f64, 2>::new(RlsConfig { lambda, p0, p_max }, SVector::zeros()).is_err();
+        let bad = |lambda, p0, p_max| {
+            Rls::<f64, 2>::new(RlsConfig { lambda, p0, p_max }, SVector::zeros()).is_err()
+        };
         assert!(bad(0.0, 1.0, 10.0));
         assert!(bad(1.5, 1.0, 10.0));
         assert!(bad(f64::NAN, 1.0, 10.0));

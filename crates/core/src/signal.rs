@@ -165,9 +165,7 @@ mod tests {
             let (s, c) = sin_cos::<f64>(phase);
             worst64 = worst64.max((s - angle.sin()).abs()).max((c - angle.cos()).abs());
             let (s, c) = sin_cos::<f32>(phase);
-            worst32 = worst32
-                .max((s as f64 - angle.sin()).abs())
-                .max((c as f64 - angle.cos()).abs());
+            worst32 = worst32.max((s as f64 - angle.sin()).abs()).max((c as f64 - angle.cos()).abs());
         }
         assert!(worst64 < 2e-15, "f64 error {worst64}");
         assert!(worst32 < 2e-7, "f32 error {worst32}");
