@@ -3,6 +3,7 @@
 //! binary is a thin command-line layer over this library.
 
 pub mod analysis;
+pub mod diagnose;
 pub mod experiment;
 pub mod fit;
 pub mod plot;
