@@ -1,0 +1,1 @@
+//! Plants the host can drive (being written).

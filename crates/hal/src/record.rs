@@ -1,0 +1,1 @@
+//! Measured records on disk (being written).
