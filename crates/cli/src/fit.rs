@@ -258,11 +258,21 @@ pub struct OeOptions {
     pub skip: usize,
     /// Levenberg–Marquardt iterations per start.
     pub max_iter: usize,
+    /// A known structure (AR part, e.g. from a broadband record): the search over
+    /// resonances is skipped and the fit refines from this structure. A record at one drive
+    /// frequency pins only one complex gain of the structure, so without it the structure of
+    /// a single-sine fit is whatever reproduces that record best, physical or not.
+    pub structure: Option<[f64; 2]>,
+    /// Keep the given structure fixed (fit only the loop, gains, branches and drift). A
+    /// single-sine record lets a free structure bend to absorb harmonics it does not cause
+    /// (moving its resonance far away), which helps that record's fit and ruins the model's
+    /// inverse; a model meant for compensation keeps the measured structure.
+    pub fix_structure: bool,
 }
 
 impl Default for OeOptions {
     fn default() -> Self {
-        Self { max_samples: 4000, skip: 200, max_iter: 40 }
+        Self { max_samples: 4000, skip: 200, max_iter: 40, structure: None, fix_structure: false }
     }
 }
 
@@ -415,13 +425,20 @@ impl<'a> Problem<'a> {
         HostModel { ext, drive_hz: self.spec.drive_hz, branches, drift }
     }
 
-    fn levenberg_marquardt(&self, mut phi: Phi, max_iter: usize) -> Option<(Phi, Solution)> {
+    /// Levenberg–Marquardt over the outer parameters from `first_free` on (2 keeps the AR part fixed).
+    fn levenberg_marquardt(
+        &self,
+        mut phi: Phi,
+        max_iter: usize,
+        first_free: usize,
+    ) -> Option<(Phi, Solution)> {
         let mut sol = self.solve(&phi)?;
         let mut mu = 1e-3;
+        let nf = 5 - first_free;
         for _ in 0..max_iter {
             let m = sol.residual.len();
-            let mut jac = DMatrix::<f64>::zeros(m, 5);
-            for p in 0..5 {
+            let mut jac = DMatrix::<f64>::zeros(m, nf);
+            for (col, p) in (first_free..5).enumerate() {
                 let step = 1e-7 * phi[p].abs().max(1e-2);
                 let mut q = phi;
                 q[p] += step;
@@ -430,12 +447,12 @@ impl<'a> Problem<'a> {
                     q[p] = phi[p] - step;
                     let s = self.solve(&q)?;
                     for i in 0..m {
-                        jac[(i, p)] = (sol.residual[i] - s.residual[i]) / step;
+                        jac[(i, col)] = (sol.residual[i] - s.residual[i]) / step;
                     }
                     continue;
                 };
                 for i in 0..m {
-                    jac[(i, p)] = (s.residual[i] - sol.residual[i]) / step;
+                    jac[(i, col)] = (s.residual[i] - sol.residual[i]) / step;
                 }
             }
             let r = DVector::from_column_slice(&sol.residual);
@@ -444,7 +461,7 @@ impl<'a> Problem<'a> {
             let mut improved = false;
             while mu < 1e12 {
                 let mut a = jtj.clone();
-                for i in 0..5 {
+                for i in 0..nf {
                     a[(i, i)] += mu * (jtj[(i, i)] + 1e-12);
                 }
                 let Some(ch) = a.cholesky() else {
@@ -453,8 +470,8 @@ impl<'a> Problem<'a> {
                 };
                 let delta = ch.solve(&(-&g));
                 let mut cand = phi;
-                for i in 0..5 {
-                    cand[i] += delta[i];
+                for i in 0..nf {
+                    cand[first_free + i] += delta[i];
                 }
                 match self.solve(&cand) {
                     Some(s) if s.cost < sol.cost => {
@@ -524,12 +541,17 @@ pub fn fit_oe(
     let nyq = 0.5 / ts;
     let mid_shape = |ar: [f64; 2]| -> Phi { [ar[0], ar[1], 0.0, 0.75 / u_amp, 2.25 / u_amp] };
     let mut ar_cands: Vec<(f64, [f64; 2])> = vec![];
-    for i in 0..16 {
-        let f_r = 5.0 * (nyq * 0.9 / 5.0f64).powf(i as f64 / 15.0);
-        for zeta in [0.01, 0.03, 0.1, 0.3, 1.0, 3.0] {
-            let ar = resonance_ar(f_r, zeta, ts);
-            if let Some(s) = prob.solve(&mid_shape(ar)) {
-                ar_cands.push((s.cost, ar));
+    match opt.structure {
+        Some(ar) => ar_cands.extend(prob.solve(&mid_shape(ar)).map(|s| (s.cost, ar))),
+        None => {
+            for i in 0..16 {
+                let f_r = 5.0 * (nyq * 0.9 / 5.0f64).powf(i as f64 / 15.0);
+                for zeta in [0.01, 0.03, 0.1, 0.3, 1.0, 3.0] {
+                    let ar = resonance_ar(f_r, zeta, ts);
+                    if let Some(s) = prob.solve(&mid_shape(ar)) {
+                        ar_cands.push((s.cost, ar));
+                    }
+                }
             }
         }
     }
@@ -552,7 +574,11 @@ pub fn fit_oe(
         let amp = m.ext.bw.a;
         if amp != 0.0 {
             let sgn = amp.signum();
-            let phi = [m.ext.ar[0], m.ext.ar[1], m.ext.bw.a0 / amp, sgn * m.ext.bw.gamma, m.ext.bw.beta];
+            let ar = match (opt.fix_structure, opt.structure) {
+                (true, Some(ar)) => ar,
+                _ => m.ext.ar,
+            };
+            let phi = [ar[0], ar[1], m.ext.bw.a0 / amp, sgn * m.ext.bw.gamma, m.ext.bw.beta];
             if let Some(s) = prob.solve(&phi) {
                 cands.push((s.cost * 0.999, phi)); // prefer a given start on ties
             }
@@ -563,7 +589,8 @@ pub fn fit_oe(
     // Stage C: Levenberg–Marquardt from the best few.
     let mut best: Option<(Phi, Solution)> = None;
     for &(_, phi) in cands.iter().take(3) {
-        if let Some((p, s)) = prob.levenberg_marquardt(phi, opt.max_iter) {
+        let first_free = if opt.fix_structure && opt.structure.is_some() { 2 } else { 0 };
+        if let Some((p, s)) = prob.levenberg_marquardt(phi, opt.max_iter, first_free) {
             if best.as_ref().is_none_or(|b| s.cost < b.1.cost) {
                 best = Some((p, s));
             }

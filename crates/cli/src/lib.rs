@@ -6,4 +6,5 @@ pub mod analysis;
 pub mod diagnose;
 pub mod experiment;
 pub mod fit;
+pub mod io;
 pub mod plot;
