@@ -3,12 +3,12 @@
 //! See the crate docs for the equations. Inside one sample interval `k`:
 //! 1. the DAC saturates and quantises `u[k]`; the transport delay picks the command that
 //!    reaches the driver at each integration step;
-//! 2. for each of the `substeps` RK4 steps of length `h = ts_s/substeps`, the driver's
-//!    target `clamp(gain·u_cmd, ±limit_v)` is constant, so its output
-//!    `v(t) = v_t + (v0 − v_t)·e^{−t/τ}` is evaluated exactly at the RK4 stages (`0, h/2, h`),
-//!    and the hysteresis `h(t)` exactly along it ([`crate::hysteresis`]); RK4 then advances
-//!    the creep terms and the modes with the drive `w(t) = kp·(v − h + Σ c_j)` known at the
-//!    stages;
+//! 2. for each of the `substeps` RK4 steps of length `Δt = ts_s/substeps`, the driver's
+//!    target `v_t = clamp(gain·u_cmd, ±limit_v)` is constant, so its output
+//!    `v(t) = v_t + (v0 − v_t)·e^{−t/τ}` is evaluated exactly at the RK4 stages
+//!    (`0, Δt/2, Δt`), and the hysteresis `h(t)` exactly along it (closed form, see the
+//!    crate docs); RK4 then advances the creep terms and the modes with the drive
+//!    `w(t) = kp·(v − h + Σ c_j)` known at the stages;
 //! 3. the sensor reads `Σ q_i` at the end of the interval, adds offset, drift and noise,
 //!    and quantises.
 
@@ -377,26 +377,18 @@ impl Bimorph {
         let (p0, p_half, p1) = (v0 - h0, v_half - h_half, v1 - h1);
 
         let hs = self.hsub;
-        let x = &st.x;
-        let mut k = [[0.0; NX]; 4];
-        let mut tmp = [0.0; NX];
-        self.rhs(x, p0, &mut k[0]);
-        for n in 0..NX {
-            tmp[n] = x[n] + 0.5 * hs * k[0][n];
-        }
-        self.rhs(&tmp, p_half, &mut k[1]);
-        for n in 0..NX {
-            tmp[n] = x[n] + 0.5 * hs * k[1][n];
-        }
-        self.rhs(&tmp, p_half, &mut k[2]);
-        for n in 0..NX {
-            tmp[n] = x[n] + hs * k[2][n];
-        }
-        self.rhs(&tmp, p1, &mut k[3]);
+        let x = st.x;
+        let stage = |a: f64, d: &[f64; NX]| -> [f64; NX] { core::array::from_fn(|n| x[n] + a * d[n]) };
+        let mut k1 = [0.0; NX];
+        let mut k2 = [0.0; NX];
+        let mut k3 = [0.0; NX];
+        let mut k4 = [0.0; NX];
+        self.rhs(&x, p0, &mut k1);
+        self.rhs(&stage(0.5 * hs, &k1), p_half, &mut k2);
+        self.rhs(&stage(0.5 * hs, &k2), p_half, &mut k3);
+        self.rhs(&stage(hs, &k3), p1, &mut k4);
         let w = hs / 6.0;
-        for n in 0..NX {
-            st.x[n] += w * (k[0][n] + 2.0 * (k[1][n] + k[2][n]) + k[3][n]);
-        }
+        st.x = core::array::from_fn(|n| x[n] + w * (k1[n] + 2.0 * (k2[n] + k3[n]) + k4[n]));
         st.v = v1;
         st.h = h1;
     }

@@ -32,8 +32,11 @@
 //!    ```text
 //!    ḣ = A·v̇ + A0·|v̇| − γ·|h|·v̇ − β·|v̇|·h          (h in V, γ and β in 1/V)
 //!    ```
-//!    `A0 ≠ 0` makes the loop asymmetric and off-centre. It is solved exactly along the
-//!    driver's output ([`hysteresis`](crate::hysteresis) module docs).
+//!    `A0 ≠ 0` makes the loop asymmetric and off-centre. The equation is rate-independent:
+//!    along a monotone voltage path (`s = sgn v̇`, `σ = sgn h` fixed) it is linear in `v`,
+//!    `dh/dv = (A + A0·s) − (γ·σ + β·s)·h`, so it is solved in closed form along the
+//!    driver's output (which is monotone within an integration step), including the one
+//!    possible zero crossing of `h`; the hysteresis adds no integration error.
 //! 5. **Creep** ([`scenario::Creep`]): parallel relaxations
 //!    `ċ_j = (a_j·(v − h) − c_j)/τ_j` (V). The drive of the structure, in µm of free
 //!    deflection, is `w = kp·(v − h + Σ c_j)`.

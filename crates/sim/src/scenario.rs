@@ -581,8 +581,7 @@ mod tests {
 
     #[test]
     fn default_survives_a_toml_round_trip() {
-        let mut s = Scenario::default();
-        s.seed = 12345;
+        let mut s = Scenario { seed: 12345, ..Scenario::default() };
         s.sensor.offset_um = -2.5;
         let text = s.to_toml_string().unwrap();
         assert_eq!(Scenario::from_toml_str(&text).unwrap(), s);
