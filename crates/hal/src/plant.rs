@@ -8,7 +8,7 @@
 //! | plant | where | what `step` does |
 //! |---|---|---|
 //! | [`Replay`] | here | returns the next sample of a measured [`Record`] |
-//! | `boucwen_sim::Bimorph` | here (impl) | integrates the virtual bimorph over one interval |
+//! | [`boucwen_sim::Bimorph`] | here (impl) | integrates the virtual bimorph over one interval |
 //! | the driver board | `transport` module of this crate | sends `u[k]` over the serial link and waits for `y[k]` |
 //!
 //! The trait is object safe, so tools hold a `&mut dyn Plant` or `Box<dyn Plant>` chosen
@@ -51,6 +51,8 @@ pub enum PlantError {
         /// The sample, counting from 0.
         sample: usize,
     },
+    /// The virtual bimorph failed (its state diverged); see [`boucwen_sim::SimError`].
+    Sim(boucwen_sim::SimError),
     /// A hardware plant failed (serial link, timeout, board fault); `error` says how.
     Device {
         /// The plant's name (e.g. the serial port).
@@ -74,6 +76,7 @@ impl fmt::Display for PlantError {
             PlantError::NonFiniteInput { plant, sample } => {
                 write!(f, "{plant}: sample {sample}: the command u is not finite")
             }
+            PlantError::Sim(e) => write!(f, "{BIMORPH_NAME}: {e}"),
             PlantError::Device { plant, error } => write!(f, "{plant}: {error}"),
         }
     }
@@ -82,6 +85,7 @@ impl fmt::Display for PlantError {
 impl std::error::Error for PlantError {
     fn source(&self) -> Option<&(dyn std::error::Error + 'static)> {
         match self {
+            PlantError::Sim(e) => Some(e),
             PlantError::Device { error, .. } => Some(error.as_ref()),
             _ => None,
         }
@@ -257,6 +261,39 @@ impl Plant for Replay {
     }
 }
 
+/// The [`Plant::name`] of the virtual bimorph.
+pub const BIMORPH_NAME: &str = "virtual bimorph";
+
+/// The virtual bimorph of `boucwen-sim`: each step integrates its physics over one
+/// sample interval (see that crate's docs for the signal chain). A non-finite command is
+/// [`PlantError::NonFiniteInput`], a diverged state [`PlantError::Sim`]; either way the
+/// bimorph keeps its state from before the call. `reset` returns it to rest at time 0
+/// with its noise reseeded, so a second run repeats the first exactly.
+impl Plant for boucwen_sim::Bimorph {
+    fn step(&mut self, u_v: f64) -> Result<f64, PlantError> {
+        boucwen_sim::Bimorph::step(self, u_v).map_err(|e| match e {
+            boucwen_sim::SimError::NonFiniteInput { sample } => PlantError::NonFiniteInput {
+                plant: BIMORPH_NAME.to_owned(),
+                sample: usize::try_from(sample).unwrap_or(usize::MAX),
+            },
+            other => PlantError::Sim(other),
+        })
+    }
+
+    fn sample_interval(&self) -> f64 {
+        self.ts_s()
+    }
+
+    fn reset(&mut self) -> Result<(), PlantError> {
+        boucwen_sim::Bimorph::reset(self);
+        Ok(())
+    }
+
+    fn name(&self) -> &str {
+        BIMORPH_NAME
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -305,6 +342,62 @@ mod tests {
             assert_eq!(e.to_string(), "bench.csv: sample 0: the command u is not finite");
             assert_eq!(p.position(), 0);
         }
+    }
+
+    /// The command of a short identification run: a 23 Hz sine of 1.5 V at 1 kHz.
+    fn sine(n: usize, ts: f64) -> Vec<f64> {
+        (0..n).map(|k| 1.5 * (2.0 * std::f64::consts::PI * 23.0 * k as f64 * ts).sin()).collect()
+    }
+
+    #[test]
+    fn bimorph_through_the_trait_resets_to_a_repeatable_run() {
+        let mut bimorph = boucwen_sim::Bimorph::new(&boucwen_sim::Scenario::default()).unwrap();
+        let plant: &mut dyn Plant = &mut bimorph;
+        assert_eq!(plant.name(), "virtual bimorph");
+        let ts = plant.sample_interval();
+        assert!(ts > 0.0);
+        let u = sine(500, ts);
+        let first = plant.run(&u).unwrap();
+        let moved = first.iter().fold(0.0f64, |m, y| m.max(y.abs()));
+        assert!(moved > 1.0, "the actuator moves under 1.5 V (peak {moved} µm)");
+        plant.reset().unwrap();
+        assert_eq!(plant.run(&u).unwrap(), first, "reset reseeds noise: same run");
+    }
+
+    #[test]
+    fn bimorph_rejects_non_finite_input_and_keeps_its_state() {
+        let scenario = boucwen_sim::Scenario::default();
+        let mut a = boucwen_sim::Bimorph::new(&scenario).unwrap();
+        let mut b = boucwen_sim::Bimorph::new(&scenario).unwrap();
+        let u = sine(50, a.ts_s());
+        let ya = Plant::run(&mut a, &u[..25]).unwrap();
+        let e = Plant::step(&mut a, f64::INFINITY).unwrap_err();
+        assert_eq!(e.to_string(), "virtual bimorph: sample 25: the command u is not finite");
+        let ya_rest = Plant::run(&mut a, &u[25..]).unwrap();
+        let yb = Plant::run(&mut b, &u).unwrap();
+        assert_eq!([ya, ya_rest].concat(), yb, "the rejected sample left no trace");
+    }
+
+    #[test]
+    fn simulated_record_written_read_and_replayed() {
+        // The workflow of a user without hardware: run the virtual bimorph, save the
+        // record, read it back, replay it with the input check on.
+        let mut bimorph = boucwen_sim::Bimorph::new(&boucwen_sim::Scenario::default()).unwrap();
+        let ts = Plant::sample_interval(&bimorph);
+        let u = sine(2000, ts);
+        let y = Plant::run(&mut bimorph, &u).unwrap();
+        let rec = Record::new("sim", 0.0, ts, u.clone(), y.clone(), None).unwrap();
+        rec.validate_for_fit(1000).unwrap();
+        let dir = std::env::temp_dir().join(format!("boucwen-plant-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("sim.csv");
+        rec.write(&path).unwrap();
+        let back = Record::read(&path).unwrap();
+        std::fs::remove_dir_all(&dir).unwrap();
+        let mut replay = Replay::new(back);
+        assert_eq!(replay.sample_interval(), ts);
+        assert_eq!(replay.run(&u).unwrap(), y);
+        assert!(matches!(replay.step(0.0), Err(PlantError::EndOfRecord { samples: 2000, .. })));
     }
 
     #[test]
