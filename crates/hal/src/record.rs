@@ -721,8 +721,10 @@ pub fn write_columns(path: impl AsRef<Path>, columns: &[(&str, &[f64])]) -> Resu
 static TEMP_COUNTER: AtomicU64 = AtomicU64::new(0);
 
 /// Writes `bytes` to a temporary file beside `path`, syncs it, and renames it over `path`;
-/// on any error the temporary file is removed and `path` is untouched.
-fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), RecordError> {
+/// on any error the temporary file is removed and `path` is untouched. The writer of
+/// [`Record::write`] and [`write_columns`], public for the project's other outputs
+/// (figures, reports); errors are [`ErrorKind::Io`] naming `path`.
+pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), RecordError> {
     let io_err = |e| RecordError::new(&path.display().to_string(), None, ErrorKind::Io(e));
     let dir = path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
     let Some(name) = path.file_name() else {
