@@ -268,11 +268,28 @@ pub struct OeOptions {
     /// (moving its resonance far away), which helps that record's fit and ruins the model's
     /// inverse; a model meant for compensation keeps the measured structure.
     pub fix_structure: bool,
+    /// Accept only models whose loop is invertible: on both branches and for every `h` the
+    /// loop can reach, the slope of `A1·u - h` stays above [`MIN_SLOPE`]·`A1` > 0
+    /// ([`BoucWenParams::min_output_slope`]; a bimorph's deflection rises with voltage on
+    /// each branch). The direct inverse (eqs. 16/17) needs it, and it drives the model along
+    /// paths other than the fitted one; a free fit may reach a locally decreasing loop that
+    /// reproduces a record as well.
+    pub require_invertible: bool,
 }
+
+/// Smallest branch slope of `A1·u - h`, relative to `A1`, of an invertible model.
+pub const MIN_SLOPE: f64 = 0.05;
 
 impl Default for OeOptions {
     fn default() -> Self {
-        Self { max_samples: 4000, skip: 200, max_iter: 40, structure: None, fix_structure: false }
+        Self {
+            max_samples: 4000,
+            skip: 200,
+            max_iter: 40,
+            structure: None,
+            fix_structure: false,
+            require_invertible: true,
+        }
     }
 }
 
@@ -280,6 +297,7 @@ impl Default for OeOptions {
 type Phi = [f64; 5];
 
 struct Problem<'a> {
+    require_invertible: bool,
     u: &'a [f64],
     y: &'a [f64],
     ts: f64,
@@ -313,7 +331,7 @@ impl<'a> Problem<'a> {
                 (0..end).map(|k| sin_cos::<f64>(drive.phase_at(k as u64).wrapping_mul(n as u64))).collect()
             })
             .collect();
-        Ok(Self { u, y, ts, end, skip, spec, branch_sc })
+        Ok(Self { require_invertible: false, u, y, ts, end, skip, spec, branch_sc })
     }
 
     fn columns(&self) -> usize {
@@ -337,6 +355,7 @@ impl<'a> Problem<'a> {
         let mut rows: Vec<f64> = Vec::with_capacity((n - self.skip) * ncol);
         let (mut h, mut u_prev) = (0.0, 0.0);
         let mut x = vec![0.0; ncol];
+
         for k in 0..n {
             let uk = self.u[k];
             let mut c = 0;
@@ -394,6 +413,16 @@ impl<'a> Problem<'a> {
         let theta = xtx.cholesky()?.solve(&xty);
         if theta.iter().any(|t| !t.is_finite()) {
             return None;
+        }
+        if self.require_invertible {
+            // Over the whole range h can reach, not only the fitted trajectory: the inverse
+            // drives the model along other paths. A negative A is a non-physical loop.
+            let (a1, amp) = (theta[0], theta[1]);
+            let bw = BoucWenParams { a1, a: amp, a0: phi[2] * amp, gamma: phi[3], beta: phi[4] };
+            let ok = a1 > 0.0 && amp >= 0.0 && bw.min_output_slope().is_some_and(|m| m >= MIN_SLOPE * a1);
+            if !ok {
+                return None;
+            }
         }
         let mut residual = Vec::with_capacity(n - self.skip);
         let mut cost = 0.0;
@@ -513,11 +542,45 @@ pub struct Fit {
     pub model: HostModel,
     /// RMS of the free-run error over the criterion window (µm).
     pub rms_fit: f64,
+    /// The model met the invertibility requirement (always `false` when it was not asked:
+    /// not checked). When asked and no invertible model fitted (with the structure fixed,
+    /// then free), the best unconstrained model is returned with this `false`.
+    pub invertible: bool,
 }
 
 /// Output-error (simulation-error) fit on `u[..fit_end]`, `y[..fit_end]`; `starts` are extra
 /// models to start from (e.g. the extended fit when fitting an enhanced model).
 pub fn fit_oe(
+    u: &[f64],
+    y: &[f64],
+    ts: f64,
+    fit_end: usize,
+    spec: &ModelSpec,
+    starts: &[HostModel],
+    opt: &OeOptions,
+) -> Result<Fit, FitError> {
+    if opt.require_invertible {
+        // Invertible first; if a fixed structure admits no invertible loop, let the
+        // structure move (from the given one) before giving up invertibility.
+        let mut tries = vec![opt.clone()];
+        if opt.fix_structure {
+            tries.push(OeOptions { fix_structure: false, ..opt.clone() });
+        }
+        for o in &tries {
+            match fit_oe_once(u, y, ts, fit_end, spec, starts, o) {
+                Ok(mut fit) => {
+                    fit.invertible = true;
+                    return Ok(fit);
+                }
+                Err(FitError::NoStableModel) => {}
+                Err(e) => return Err(e),
+            }
+        }
+    }
+    fit_oe_once(u, y, ts, fit_end, spec, starts, &OeOptions { require_invertible: false, ..opt.clone() })
+}
+
+fn fit_oe_once(
     u: &[f64],
     y: &[f64],
     ts: f64,
@@ -532,7 +595,8 @@ pub fn fit_oe(
     if end < need {
         return Err(FitError::TooFewSamples { have: end, need });
     }
-    let prob = Problem::new(u, y, ts, end, opt.skip, spec)?;
+    let mut prob = Problem::new(u, y, ts, end, opt.skip, spec)?;
+    prob.require_invertible = opt.require_invertible;
     let u_amp = u[..end].iter().fold(0.0f64, |m, v| m.max(v.abs())).max(1e-9);
 
     // Stage A: structures. A single-frequency record pins only one complex gain of G,
@@ -598,7 +662,7 @@ pub fn fit_oe(
     }
     let (phi, sol) = best.ok_or(FitError::NoStableModel)?;
     let model = prob.model(&phi, &sol.theta);
-    Ok(Fit { model, rms_fit: (sol.cost / sol.residual.len() as f64).sqrt() })
+    Ok(Fit { model, rms_fit: (sol.cost / sol.residual.len() as f64).sqrt(), invertible: false })
 }
 
 /// Free-run RMS error of `model` on `y[from..]` (simulated from sample 0). Non-finite if

@@ -8,3 +8,5 @@ pub mod experiment;
 pub mod fit;
 pub mod io;
 pub mod plot;
+pub mod report;
+pub mod sweep;

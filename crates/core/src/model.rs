@@ -86,6 +86,41 @@ impl<T: Real> BoucWenParams<T> {
     }
 }
 
+impl<T: Real> BoucWenParams<T> {
+    /// The range `[h_lo, h_hi]` that `h` cannot leave once inside (0 is inside): with
+    /// `γ + β > 0` each branch saturates where its slope vanishes,
+    /// `h_hi = (A + A0)/(γ + β)` rising and `h_lo = -(A - A0)/(γ + β)` falling. `None` when
+    /// `γ + β ≤ 0` (`h` is unbounded).
+    pub fn h_range(&self) -> Option<(T, T)> {
+        let s = self.gamma + self.beta;
+        if !(s > T::zero()) {
+            return None;
+        }
+        Some(((-(self.a - self.a0) / s).min(T::zero()), ((self.a + self.a0) / s).max(T::zero())))
+    }
+
+    /// The smallest slope of the static part `A1·u - h` over both branches and every `h`
+    /// in [`Self::h_range`]: `min (A1 - slope)`. The direct inverse (eqs. 16/17) is well posed
+    /// when it is positive (the output rises with the input on each branch). The slopes
+    /// are piecewise linear in `h` with a kink at 0, so the minimum is at `h_lo`, 0 or
+    /// `h_hi`. `None` when `h` is unbounded.
+    pub fn min_output_slope(&self) -> Option<T> {
+        let (lo, hi) = self.h_range()?;
+        let mut worst = T::zero();
+        let mut first = true;
+        for h in [lo, T::zero(), hi] {
+            for rising in [true, false] {
+                let d = self.a1 - self.slope(h, rising);
+                if first || d < worst {
+                    worst = d;
+                    first = false;
+                }
+            }
+        }
+        Some(worst)
+    }
+}
+
 /// The hysteresis state: `h[k-1]` and `u[k-1]`.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct HysteresisState<T> {
@@ -441,6 +476,30 @@ mod tests {
             let u = ((k as f64) * 0.1).sin();
             assert_eq!(ext.step(&mut a, u), enh.step(&mut b, u));
         }
+    }
+
+    #[test]
+    fn h_stays_in_its_range_and_the_slope_bound_holds_along_the_way() {
+        let p = bw();
+        let (lo, hi) = p.h_range().unwrap();
+        // (A ± A0)/(γ + β) = 1.1/0.75 and 0.9/0.75
+        assert_close(hi, 1.1 / 0.75, 1e-15);
+        assert_close(lo, -0.9 / 0.75, 1e-15);
+        let min_slope = p.min_output_slope().unwrap();
+        let mut s = HysteresisState::default();
+        for k in 0..20_000 {
+            let u = 3.0 * (k as f64 * 0.003).sin() * (k as f64 * 0.0007).cos();
+            let h_prev = s.h;
+            let h = s.step(&p, u);
+            assert!(h <= hi + 1e-12 && h >= lo - 1e-12, "h = {h} outside [{lo}, {hi}]");
+            // Observed output slope on the branch taken, never below the bound.
+            let du = u - s.u_prev;
+            let _ = du;
+            assert!(p.a1 - p.slope(h_prev, true) >= min_slope - 1e-12);
+            assert!(p.a1 - p.slope(h_prev, false) >= min_slope - 1e-12);
+        }
+        // Unbounded h: no range, no bound.
+        assert_eq!(BoucWenParams { gamma: -0.5, beta: 0.25, ..p }.min_output_slope(), None);
     }
 
     #[test]

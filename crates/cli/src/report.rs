@@ -1,0 +1,125 @@
+//! Files a sweep writes: `sweep.csv` and SVG figures in the manner of the paper's
+//! Figs. 6, 10, 11, 13, 16 and 17.
+
+use crate::analysis;
+use crate::io::{self, WriteError};
+use crate::plot::{Chart, Series};
+use crate::sweep::{SweepResult, Traces};
+use std::path::{Path, PathBuf};
+
+/// Writes `sweep.csv` and the figures into `dir`; returns the files written.
+pub fn write_sweep(result: &SweepResult, dir: &Path) -> Result<Vec<PathBuf>, WriteError> {
+    io::create_dir(dir)?;
+    let mut written = vec![];
+    let mut put = |name: &str, text: String| -> Result<(), WriteError> {
+        let p = dir.join(name);
+        io::write_atomic(&p, text.as_bytes())?;
+        written.push(p);
+        Ok(())
+    };
+    put("sweep.csv", result.csv())?;
+    put("modelling_error.svg", modelling_error(result).to_svg())?;
+    put("compensation_rmse.svg", compensation(result).to_svg())?;
+    if let Some(t) = result.traces.iter().find(|t| (t.freq_hz - 23.0).abs() < 1e-9).or(result.traces.last()) {
+        let f = t.freq_hz;
+        put(&format!("loops_{f}hz.svg"), loops(t).to_svg())?;
+        put(&format!("tracking_{f}hz.svg"), tracking(t).to_svg())?;
+        put(&format!("error_spectrum_{f}hz.svg"), error_spectrum(t).to_svg())?;
+    }
+    if !result.traces.is_empty() {
+        put("spectra.svg", spectra(&result.traces).to_svg())?;
+    }
+    Ok(written)
+}
+
+fn col(result: &SweepResult, f: impl Fn(&crate::sweep::Row) -> f64) -> Vec<f64> {
+    result.rows.iter().map(f).collect()
+}
+
+/// Fig. 10: held-out free-run RMS modelling error against frequency.
+pub fn modelling_error(r: &SweepResult) -> Chart {
+    let x = col(r, |w| w.freq_hz);
+    Chart::new("Modelling error (free run, held-out half)", "drive frequency (Hz)", "RMS error (µm)")
+        .with(Series::line("extended, output error", x.clone(), col(r, |w| w.rms_extended_oe_um), 0).points())
+        .with(Series::line("enhanced, output error", x.clone(), col(r, |w| w.rms_enhanced_oe_um), 1).points())
+        .with(Series::line("extended, paper RLS", x.clone(), col(r, |w| w.rms_extended_um), 2).dashed())
+        .with(Series::line("enhanced, paper RLS", x, col(r, |w| w.rms_enhanced_um), 3).dashed())
+        .log_y()
+}
+
+/// Fig. 16: tracking RMSE against frequency.
+pub fn compensation(r: &SweepResult) -> Chart {
+    let x = col(r, |w| w.freq_hz);
+    Chart::new("Tracking RMSE after settling", "drive frequency (Hz)", "RMSE (µm)")
+        .with(
+            Series::line(
+                "u_f alone (eqs. 16/17), output-error model",
+                x.clone(),
+                col(r, |w| w.rmse_uf_oe_um),
+                0,
+            )
+            .points(),
+        )
+        .with(
+            Series::line(
+                "proposed (eqs. 20/21), output-error model",
+                x.clone(),
+                col(r, |w| w.rmse_proposed_oe_um),
+                1,
+            )
+            .points(),
+        )
+        .with(Series::line("u_f alone, paper-RLS model", x.clone(), col(r, |w| w.rmse_uf_um), 2).dashed())
+        .with(Series::line("proposed, paper-RLS model", x, col(r, |w| w.rmse_proposed_um), 3).dashed())
+        .log_y()
+}
+
+/// The last `periods` drive periods of a trace range.
+fn last_periods(len: usize, f: f64, ts: f64, periods: f64) -> std::ops::Range<usize> {
+    let n = ((periods / f) / ts).round() as usize;
+    len.saturating_sub(n.max(2))..len
+}
+
+/// Fig. 11: measured and model loops in the u–y plane (held-out data).
+pub fn loops(t: &Traces) -> Chart {
+    let r = last_periods(t.u.len(), t.freq_hz, t.ts, 2.0);
+    let u = t.u[r.clone()].to_vec();
+    Chart::new(format!("Loops at {} Hz (held-out data)", t.freq_hz), "u (V)", "y (µm)")
+        .with(Series::line("measured", u.clone(), t.y[r.clone()].to_vec(), 7))
+        .with(Series::line("extended model", u.clone(), t.y_extended[r.clone()].to_vec(), 0).dashed())
+        .with(Series::line("enhanced model", u, t.y_enhanced[r].to_vec(), 1))
+}
+
+/// Fig. 17: reference and output in time, `u_f` alone and the proposed law.
+pub fn tracking(t: &Traces) -> Chart {
+    let r = last_periods(t.track_uf.y.len(), t.freq_hz, t.ts, 3.0);
+    let time: Vec<f64> = r.clone().map(|k| k as f64 * t.ts).collect();
+    Chart::new(format!("Tracking at {} Hz", t.freq_hz), "t (s)", "y (µm)")
+        .with(Series::line("reference d", time.clone(), t.track_uf.d[r.clone()].to_vec(), 7).dashed())
+        .with(Series::line("u_f alone", time.clone(), t.track_uf.y[r.clone()].to_vec(), 0))
+        .with(Series::line("proposed", time, t.track_proposed.y[r].to_vec(), 1))
+}
+
+/// Fig. 13: spectrum of the tracking error with `u_f` alone (and with the proposed law).
+pub fn error_spectrum(t: &Traces) -> Chart {
+    let half = t.track_uf.y.len() / 2;
+    let (f1, a1) = analysis::spectrum(&t.track_uf.error()[half..], t.ts);
+    let (f2, a2) = analysis::spectrum(&t.track_proposed.error()[half..], t.ts);
+    Chart::new(format!("Tracking-error spectrum at {} Hz", t.freq_hz), "frequency (Hz)", "amplitude (µm)")
+        .with(Series::line("u_f alone", f1, a1, 0))
+        .with(Series::line("proposed", f2, a2, 1))
+        .log_y()
+}
+
+/// Fig. 6: spectra of the actuator's response to the identification sines.
+pub fn spectra(traces: &[Traces]) -> Chart {
+    let mut c =
+        Chart::new("Response spectra (identification records)", "frequency (Hz)", "amplitude (µm)").log_y();
+    for (i, t) in traces.iter().enumerate() {
+        let (f, a) = analysis::spectrum(&t.y[t.y.len() / 2..], t.ts);
+        c = c.with(Series::line(format!("{} Hz drive", t.freq_hz), f, a, i));
+    }
+    c.x_range = Some((0.0, 200.0));
+    c.y_range = Some((1e-4, 100.0));
+    c
+}
