@@ -6,7 +6,6 @@ pub mod analysis;
 pub mod diagnose;
 pub mod experiment;
 pub mod fit;
-pub mod io;
 pub mod plot;
 pub mod report;
 pub mod sweep;

@@ -2,18 +2,50 @@
 //! Figs. 6, 10, 11, 13, 16 and 17.
 
 use crate::analysis;
-use crate::io::{self, WriteError};
 use crate::plot::{Chart, Series};
 use crate::sweep::{SweepResult, Traces};
+use boucwen_hal::record::{RecordError, write_atomic};
 use std::path::{Path, PathBuf};
 
+/// An output that could not be written.
+#[derive(Debug)]
+pub enum ReportError {
+    /// The output directory could not be created.
+    CreateDir {
+        /// The directory.
+        path: PathBuf,
+        /// Why.
+        source: std::io::Error,
+    },
+    /// A file could not be written (atomically: nothing half-written is left).
+    Write(RecordError),
+}
+
+impl std::fmt::Display for ReportError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            ReportError::CreateDir { path, source } => {
+                write!(f, "cannot create {}: {source}", path.display())
+            }
+            ReportError::Write(e) => write!(f, "{e}"),
+        }
+    }
+}
+
+impl std::error::Error for ReportError {}
+
+/// Creates `dir` (and its parents).
+pub fn create_dir(dir: &Path) -> Result<(), ReportError> {
+    std::fs::create_dir_all(dir).map_err(|source| ReportError::CreateDir { path: dir.to_path_buf(), source })
+}
+
 /// Writes `sweep.csv` and the figures into `dir`; returns the files written.
-pub fn write_sweep(result: &SweepResult, dir: &Path) -> Result<Vec<PathBuf>, WriteError> {
-    io::create_dir(dir)?;
+pub fn write_sweep(result: &SweepResult, dir: &Path) -> Result<Vec<PathBuf>, ReportError> {
+    create_dir(dir)?;
     let mut written = vec![];
-    let mut put = |name: &str, text: String| -> Result<(), WriteError> {
+    let mut put = |name: &str, text: String| -> Result<(), ReportError> {
         let p = dir.join(name);
-        io::write_atomic(&p, text.as_bytes())?;
+        write_atomic(&p, text.as_bytes()).map_err(ReportError::Write)?;
         written.push(p);
         Ok(())
     };
