@@ -213,35 +213,48 @@ impl<T: Real, const N: usize> Rls<T, N> {
     /// prediction with respect to `θ` and `e` the prediction error computed by the caller
     /// (for a model linear in `θ`, `ψ = x` and `e = y - θᵀx`, which is [`Rls::update`]).
     /// On `Err` nothing changed.
+    ///
+    /// The loops work on the fixed-size arrays behind the matrices (columns of `U`, which
+    /// nalgebra stores column-major), so they carry no bounds checks and vectorise; the
+    /// divisions, which do not depend on the gain `k`, are done in one pass before the
+    /// `O(N²)` loop. Every value is computed by the same operations in the same order as in
+    /// the recursion written out in the module docs.
     #[inline]
     pub fn update_with_error(&mut self, psi: &SVector<T, N>, e: T) -> Result<(), Error> {
-        let x = psi;
-        if x.iter().any(|v| !v.is_finite()) {
+        let x: &[T; N] = &psi.data.0[0];
+        if !all_finite(x) {
             self.stats.rejected = self.stats.rejected.saturating_add(1);
             return Err(Error::NonFinite("regressor"));
         }
         // Time update (selective forgetting) on a copy: nothing changes before the checks.
-        let mut d = self.d;
+        // (Computed for every factor and selected, which keeps the loop branch-free.)
+        let (lambda, p_max) = (self.cfg.lambda, self.cfg.p_max);
+        let mut d = self.d.data.0[0];
         let mut capped = false;
         for dj in d.iter_mut() {
-            if *dj < self.cfg.p_max {
-                *dj /= self.cfg.lambda;
-            } else {
-                capped = true;
-            }
+            let keep = !(*dj < p_max);
+            capped |= keep;
+            let inflated = *dj / lambda;
+            *dj = if keep { *dj } else { inflated };
         }
-        // f = Uᵀ x, v = D f
-        let mut f = *x;
-        for j in (0..N).rev() {
-            let mut acc = f[j];
-            for i in 0..j {
-                acc += self.u[(i, j)] * x[i];
+        // f = Uᵀ x (column j of U holds U_0j..U_Nj), v = D f, and the running sums
+        // α_j = α_{j-1} + f_j v_j (alpha[j] = α_{j+1}).
+        let cols: &[[T; N]; N] = &self.u.data.0;
+        let mut f = [T::zero(); N];
+        let mut v = [T::zero(); N];
+        let mut alpha = [T::zero(); N];
+        let mut acc_alpha = T::one();
+        for j in 0..N {
+            let mut acc = x[j];
+            for (uij, xi) in cols[j][..j].iter().zip(&x[..j]) {
+                acc += *uij * *xi;
             }
             f[j] = acc;
+            v[j] = d[j] * acc;
+            acc_alpha += acc * v[j];
+            alpha[j] = acc_alpha;
         }
-        let v = d.component_mul(&f);
-        let alpha_n = T::one() + f.dot(&v);
-        if !e.is_finite() || !alpha_n.is_finite() {
+        if !e.is_finite() || !acc_alpha.is_finite() {
             self.stats.rejected = self.stats.rejected.saturating_add(1);
             return Err(Error::NonFinite("prediction error"));
         }
@@ -249,32 +262,55 @@ impl<T: Real, const N: usize> Rls<T, N> {
             self.stats.forgetting_suspended = self.stats.forgetting_suspended.saturating_add(1);
         }
 
-        let mut k = SVector::<T, N>::zeros();
-        let mut alpha = T::one();
+        // D_j ← D_j α_{j-1} / α_j and μ_j = -f_j / α_{j-1}, all independent of k.
+        let mut mu = [T::zero(); N];
+        let mut alpha_prev = T::one();
         for j in 0..N {
-            let alpha_prev = alpha;
-            alpha += f[j] * v[j];
-            d[j] = d[j] * alpha_prev / alpha;
-            let mu = -f[j] / alpha_prev;
-            for i in 0..j {
-                let uij = self.u[(i, j)];
-                self.u[(i, j)] = uij + k[i] * mu;
-                k[i] += uij * v[j];
-            }
-            k[j] = v[j];
+            d[j] = d[j] * alpha_prev / alpha[j];
+            mu[j] = -f[j] / alpha_prev;
+            alpha_prev = alpha[j];
         }
-        self.d = d;
-        let theta = self.theta + k * (e / alpha);
-        let healthy =
-            theta.iter().all(|t| t.is_finite()) && self.d.iter().all(|&dj| dj.is_finite() && dj > T::zero());
+        // U_ij ← U_ij + k_i μ_j,  k_i ← k_i + U_ij(old) v_j  (i < j),  k_j = v_j.
+        let mut k = [T::zero(); N];
+        let cols: &mut [[T; N]; N] = &mut self.u.data.0;
+        for j in 0..N {
+            let (mu_j, v_j) = (mu[j], v[j]);
+            for (uij, ki) in cols[j][..j].iter_mut().zip(&mut k[..j]) {
+                let old = *uij;
+                *uij = old + *ki * mu_j;
+                *ki += old * v_j;
+            }
+            k[j] = v_j;
+        }
+        // θ ← θ + k e / α_N
+        let gain = e / alpha_prev;
+        let mut theta = self.theta.data.0[0];
+        for (t, kj) in theta.iter_mut().zip(&k) {
+            *t += *kj * gain;
+        }
+        self.d.data.0[0] = d;
+        let mut healthy = all_finite(&theta);
+        for &dj in &d {
+            healthy &= dj.is_finite() & (dj > T::zero());
+        }
         if healthy {
-            self.theta = theta;
+            self.theta.data.0[0] = theta;
         } else {
             self.reset_covariance();
         }
         self.stats.updates = self.stats.updates.saturating_add(1);
         Ok(())
     }
+}
+
+/// Whether every entry is finite (without early exit, so the loop vectorises).
+#[inline(always)]
+fn all_finite<T: Real, const N: usize>(v: &[T; N]) -> bool {
+    let mut ok = true;
+    for &t in v {
+        ok &= t.is_finite();
+    }
+    ok
 }
 
 #[cfg(test)]
