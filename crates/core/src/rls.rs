@@ -232,10 +232,10 @@ impl<T: Real, const N: usize> Rls<T, N> {
         let mut d = self.d.data.0[0];
         let mut capped = false;
         for dj in d.iter_mut() {
-            let keep = !(*dj < p_max);
-            capped |= keep;
+            let inflate = *dj < p_max;
+            capped |= !inflate;
             let inflated = *dj / lambda;
-            *dj = if keep { *dj } else { inflated };
+            *dj = if inflate { inflated } else { *dj };
         }
         // f = Uᵀ x (column j of U holds U_0j..U_Nj), v = D f, and the running sums
         // α_j = α_{j-1} + f_j v_j (alpha[j] = α_{j+1}).
@@ -289,10 +289,12 @@ impl<T: Real, const N: usize> Rls<T, N> {
             *t += *kj * gain;
         }
         self.d.data.0[0] = d;
-        let mut healthy = all_finite(&theta);
+        let mut d_min = T::lit(f64::INFINITY);
         for &dj in &d {
-            healthy &= dj.is_finite() & (dj > T::zero());
+            // (A NaN is not taken here but fails `all_finite`.)
+            d_min = if dj < d_min { dj } else { d_min };
         }
+        let healthy = all_finite(&theta) & all_finite(&d) & (d_min > T::zero());
         if healthy {
             self.theta.data.0[0] = theta;
         } else {
@@ -303,14 +305,15 @@ impl<T: Real, const N: usize> Rls<T, N> {
     }
 }
 
-/// Whether every entry is finite (without early exit, so the loop vectorises).
+/// Whether every entry is finite: `t·0` is 0 for a finite `t` and NaN otherwise, so the
+/// sum is 0 exactly when all are finite (arithmetic without branches, which vectorises).
 #[inline(always)]
 fn all_finite<T: Real, const N: usize>(v: &[T; N]) -> bool {
-    let mut ok = true;
+    let mut acc = T::zero();
     for &t in v {
-        ok &= t.is_finite();
+        acc += t * T::zero();
     }
-    ok
+    acc == T::zero()
 }
 
 #[cfg(test)]
