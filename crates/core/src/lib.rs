@@ -55,6 +55,7 @@
 #![cfg_attr(not(any(test, feature = "std")), no_std)]
 
 pub mod compensator;
+pub mod controllers;
 pub mod error;
 pub mod ident;
 pub mod model;
