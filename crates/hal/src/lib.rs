@@ -10,3 +10,4 @@
 pub mod plant;
 #[cfg(feature = "std")]
 pub mod record;
+pub mod wire;

@@ -1,0 +1,615 @@
+//! The messages and their payloads: explicit little-endian fields, fixed layouts.
+//!
+//! | kind | message | direction | payload (bytes) |
+//! |---|---|---|---|
+//! | `0x01` | [`Message::GetStatus`] | host → board | 0 |
+//! | `0x02` | [`Message::SetController`] | host → board | [`ControllerParams`], 95 |
+//! | `0x03` | [`Message::SetPlant`] | host → board | [`PlantParams`], 59 |
+//! | `0x04` | [`Message::Start`] | host → board | mode u8, samples u32 |
+//! | `0x05` | [`Message::Stop`] | host → board | 0 |
+//! | `0x06` | [`Message::Measurement`] | either | k u32, y f32 (µm) |
+//! | `0x07` | [`Message::Command`] | either | k u32, u f32 (V), used u16, flags u8 |
+//! | `0x10` | [`Message::Ack`] | board → host | kind u8, seq u16 |
+//! | `0x11` | [`Message::Status`] | board → host | [`Status`], 50 |
+//! | `0x12` | [`Message::Fault`] | board → host | code u8, seq u16, text (≤ 48 bytes UTF-8) |
+//!
+//! Every multi-byte field is little-endian; `f32` is its IEEE 754 bit pattern (so values
+//! cross the link bit for bit); `u64` phase increments are the core's
+//! [`Oscillator`] units (2⁻⁶⁴ turn per sample). A payload must have exactly its layout's
+//! length; enumerations and counts are range-checked; floats are taken as they come (the
+//! compensator's own validation rejects non-finite parameters with the parameter's name).
+
+use super::WireError;
+use super::frame::MAX_PAYLOAD;
+use boucwen_core::compensator::{HarmonicSpec, Saturation};
+use boucwen_core::model::{BoucWenParams, ExtendedParams, HarmonicBranch};
+use boucwen_core::rls::RlsConfig;
+use boucwen_core::signal::Oscillator;
+use core::fmt::{self, Write as _};
+use heapless::{String, Vec};
+use nalgebra::Complex;
+
+/// AR order carried on the wire; lower orders are padded with zero coefficients.
+pub const MAX_AR: usize = 3;
+/// Most harmonics the board cancels (and the on-chip plant's most branches).
+pub const MAX_HARMONICS: usize = 2;
+/// Longest [`Fault`] text, bytes.
+pub const MAX_TEXT: usize = 48;
+
+/// Everything the board needs to run the compensator of `boucwen_core::compensator`:
+/// the identified model, the reference, the cancelled harmonics, the RLS settings and the
+/// driver's range.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ControllerParams {
+    /// The extended model inverted by `u_f` (AR part zero-padded to [`MAX_AR`]).
+    pub model: ExtendedParams<f32, MAX_AR>,
+    /// The reference frequency `f`: phase increment per sample.
+    pub drive: Oscillator,
+    /// The board's sample period, µs (what its timer ticks at; the model's `Ts`).
+    pub sample_period_us: u32,
+    /// Reference amplitude `α`, µm: `d[k] = α·w[k]·sin(2π f k Ts)`.
+    pub amplitude_um: f32,
+    /// Length of the raised-cosine fade-in `w[k]` of the reference, samples (0: none).
+    pub fade_samples: u32,
+    /// The cancelled harmonics: order `n` and the plant's response at `n·f`.
+    pub harmonics: Vec<HarmonicSpec<f32>, MAX_HARMONICS>,
+    /// RLS of the cancellation weights.
+    pub rls: RlsConfig<f32>,
+    /// The driver's input range, V.
+    pub saturation: Saturation<f32>,
+    /// Bound on each cancellation amplitude `|α̂_n|`, V.
+    pub uc_max: f32,
+}
+
+/// The on-chip plant of the self-test and of the board's plant mode: the core's enhanced
+/// model in `f32` (the extended model plus harmonic branches without AR part).
+#[derive(Clone, Debug, PartialEq)]
+pub struct PlantParams {
+    /// Hysteresis, gain and structure.
+    pub base: ExtendedParams<f32, MAX_AR>,
+    /// The drive frequency whose harmonics the branches follow.
+    pub drive: Oscillator,
+    /// The harmonic branches.
+    pub branches: Vec<HarmonicBranch<f32, 0>, MAX_HARMONICS>,
+}
+
+/// What a [`Message::Start`] starts.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Mode {
+    /// The board is the controller: every tick it sends [`Message::Command`] `u[k]`, and
+    /// the host answers with [`Message::Measurement`] `y[k]` from its actuator.
+    Control = 1,
+    /// The board is the plant (its on-chip model stands for actuator and sensor): every
+    /// [`Message::Command`] from the host is answered with a [`Message::Measurement`].
+    Plant = 2,
+}
+
+/// The board's state in a [`Status`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum RunState {
+    /// Nothing configured.
+    Unconfigured = 0,
+    /// Configured, not running.
+    Idle = 1,
+    /// A run is going on.
+    Running = 2,
+}
+
+/// Counters of the board's current (or last) run; they reset at [`Message::Start`].
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Status {
+    /// [`RunState`] as its number.
+    pub state: u8,
+    /// [`Mode`] of the run as its number (0: none yet).
+    pub mode: u8,
+    /// Samples done.
+    pub samples_done: u32,
+    /// Samples asked for (0: until [`Message::Stop`]).
+    pub samples_total: u32,
+    /// Intact frames received.
+    pub rx_frames: u32,
+    /// Frames received and rejected (COBS, CRC, length, unknown kind or value).
+    pub rx_bad: u32,
+    /// Frames missing from the host's sequence numbers and never seen even as bad frames.
+    pub rx_lost: u32,
+    /// Frames sent.
+    pub tx_frames: u32,
+    /// Control mode: ticks at which `y[k-1]` had arrived and was used.
+    pub measurements_used: u32,
+    /// Control mode: ticks at which `y[k-1]` had not arrived (the step ran without it).
+    pub measurements_missing: u32,
+    /// Measurements that arrived after their tick, or for a sample not in the run.
+    pub measurements_stale: u32,
+    /// Bytes dropped because the receive buffer was full.
+    pub rx_overflow_bytes: u32,
+    /// Ticks missed because the loop was still busy with an earlier one.
+    pub tick_overruns: u32,
+    /// Steps that failed (non-finite measurement): the step ran without the measurement.
+    pub compute_errors: u32,
+}
+
+/// Why the board refused something.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum FaultCode {
+    /// A frame failed its checks (text: which); this is the board's negative acknowledge.
+    BadFrame = 1,
+    /// The message is not valid now (e.g. a measurement while idle).
+    Unexpected = 2,
+    /// [`Message::Start`] before the parameters the mode needs.
+    NotConfigured = 3,
+    /// The parameters were rejected (text: which one and why).
+    InvalidParams = 4,
+    /// A run is going on; stop it first.
+    Busy = 5,
+}
+
+/// A refusal, naming the frame that caused it.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Fault {
+    /// What kind of refusal.
+    pub code: FaultCode,
+    /// Sequence number of the frame refused (`0xFFFF` for a frame too damaged to read it).
+    pub seq: u16,
+    /// Detail, e.g. the parameter rejected.
+    pub text: String<MAX_TEXT>,
+}
+
+impl Fault {
+    /// A fault whose text is `what`'s `Display`, cut at [`MAX_TEXT`] bytes (on a character
+    /// boundary).
+    pub fn new(code: FaultCode, seq: u16, what: impl fmt::Display) -> Self {
+        struct Cut<'a>(&'a mut String<MAX_TEXT>);
+        impl fmt::Write for Cut<'_> {
+            fn write_str(&mut self, s: &str) -> fmt::Result {
+                for c in s.chars() {
+                    if self.0.push(c).is_err() {
+                        return Err(fmt::Error);
+                    }
+                }
+                Ok(())
+            }
+        }
+        let mut text = String::new();
+        // A cut text is still the best description there is.
+        let _ = write!(Cut(&mut text), "{what}");
+        Self { code, seq, text }
+    }
+}
+
+/// Flags of a [`Message::Command`] from the board.
+pub mod command_flags {
+    /// `u` was clamped to the driver's range.
+    pub const SATURATED: u8 = 1;
+    /// The inverse's denominator guard acted.
+    pub const GUARDED: u8 = 2;
+}
+
+/// One message of the protocol.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Message {
+    /// Asks for a [`Message::Status`].
+    GetStatus,
+    /// Configures the compensator (answered by [`Message::Ack`] or [`Message::Fault`]).
+    SetController(ControllerParams),
+    /// Configures the on-chip plant (answered by [`Message::Ack`] or [`Message::Fault`]).
+    SetPlant(PlantParams),
+    /// Starts a run of `samples` samples (0: until [`Message::Stop`]).
+    Start {
+        /// What the board does in the run.
+        mode: Mode,
+        /// Run length.
+        samples: u32,
+    },
+    /// Ends the run (answered by [`Message::Status`]).
+    Stop,
+    /// The measurement `y[k]`, µm.
+    Measurement {
+        /// Sample index.
+        k: u32,
+        /// Measured output, µm.
+        y: f32,
+    },
+    /// The command `u[k]`, V.
+    Command {
+        /// Sample index.
+        k: u32,
+        /// Command, V.
+        u: f32,
+        /// From the board: bit `i` set when the step of sample `k - i` used the measurement
+        /// `y[k-i-1]` (so a host that lost a few commands still learns what the board did).
+        /// From the host: 0.
+        used: u16,
+        /// [`command_flags`].
+        flags: u8,
+    },
+    /// A request was carried out.
+    Ack {
+        /// Kind of the message acknowledged.
+        kind: u8,
+        /// Its sequence number.
+        seq: u16,
+    },
+    /// The board's counters.
+    Status(Status),
+    /// A refusal.
+    Fault(Fault),
+}
+
+/// Message kinds (the byte after the sequence number).
+pub mod kind {
+    /// [`super::Message::GetStatus`]
+    pub const GET_STATUS: u8 = 0x01;
+    /// [`super::Message::SetController`]
+    pub const SET_CONTROLLER: u8 = 0x02;
+    /// [`super::Message::SetPlant`]
+    pub const SET_PLANT: u8 = 0x03;
+    /// [`super::Message::Start`]
+    pub const START: u8 = 0x04;
+    /// [`super::Message::Stop`]
+    pub const STOP: u8 = 0x05;
+    /// [`super::Message::Measurement`]
+    pub const MEASUREMENT: u8 = 0x06;
+    /// [`super::Message::Command`]
+    pub const COMMAND: u8 = 0x07;
+    /// [`super::Message::Ack`]
+    pub const ACK: u8 = 0x10;
+    /// [`super::Message::Status`]
+    pub const STATUS: u8 = 0x11;
+    /// [`super::Message::Fault`]
+    pub const FAULT: u8 = 0x12;
+}
+
+/// Payload lengths of the fixed layouts.
+const CONTROLLER_LEN: usize = 5 * 4 + MAX_AR * 4 + 8 + 4 + 4 + 4 + 1 + MAX_HARMONICS * 9 + 3 * 4 + 2 * 4 + 4;
+const PLANT_LEN: usize = 5 * 4 + MAX_AR * 4 + 8 + 1 + MAX_HARMONICS * 9;
+const STATUS_LEN: usize = 2 + 12 * 4;
+const _: () = assert!(CONTROLLER_LEN <= MAX_PAYLOAD && PLANT_LEN <= MAX_PAYLOAD);
+const _: () = assert!(4 + MAX_TEXT <= MAX_PAYLOAD);
+
+/// Little-endian writer over a payload buffer.
+struct Writer<'a> {
+    buf: &'a mut [u8],
+    at: usize,
+}
+
+impl Writer<'_> {
+    fn bytes(&mut self, b: &[u8]) -> Result<(), WireError> {
+        let dst = self.buf.get_mut(self.at..self.at + b.len()).ok_or(WireError::TooLong)?;
+        dst.copy_from_slice(b);
+        self.at += b.len();
+        Ok(())
+    }
+    fn u8(&mut self, v: u8) -> Result<(), WireError> {
+        self.bytes(&[v])
+    }
+    fn u16(&mut self, v: u16) -> Result<(), WireError> {
+        self.bytes(&v.to_le_bytes())
+    }
+    fn u32(&mut self, v: u32) -> Result<(), WireError> {
+        self.bytes(&v.to_le_bytes())
+    }
+    fn u64(&mut self, v: u64) -> Result<(), WireError> {
+        self.bytes(&v.to_le_bytes())
+    }
+    fn f32(&mut self, v: f32) -> Result<(), WireError> {
+        self.bytes(&v.to_bits().to_le_bytes())
+    }
+}
+
+/// Little-endian reader over a payload; every read checks the length.
+struct Reader<'a> {
+    buf: &'a [u8],
+    at: usize,
+}
+
+impl<'a> Reader<'a> {
+    fn take<const N: usize>(&mut self) -> Result<[u8; N], WireError> {
+        let src = self.buf.get(self.at..self.at + N).ok_or(WireError::BadLength)?;
+        self.at += N;
+        let mut out = [0u8; N];
+        out.copy_from_slice(src);
+        Ok(out)
+    }
+    fn u8(&mut self) -> Result<u8, WireError> {
+        Ok(self.take::<1>()?[0])
+    }
+    fn u16(&mut self) -> Result<u16, WireError> {
+        Ok(u16::from_le_bytes(self.take()?))
+    }
+    fn u32(&mut self) -> Result<u32, WireError> {
+        Ok(u32::from_le_bytes(self.take()?))
+    }
+    fn u64(&mut self) -> Result<u64, WireError> {
+        Ok(u64::from_le_bytes(self.take()?))
+    }
+    fn f32(&mut self) -> Result<f32, WireError> {
+        Ok(f32::from_bits(self.u32()?))
+    }
+    fn rest(&mut self) -> &'a [u8] {
+        let r = self.buf.get(self.at..).unwrap_or(&[]);
+        self.at = self.buf.len();
+        r
+    }
+    fn end(&self) -> Result<(), WireError> {
+        if self.at == self.buf.len() { Ok(()) } else { Err(WireError::BadLength) }
+    }
+}
+
+fn write_model(w: &mut Writer<'_>, m: &ExtendedParams<f32, MAX_AR>) -> Result<(), WireError> {
+    for v in [m.bw.a1, m.bw.a, m.bw.a0, m.bw.gamma, m.bw.beta] {
+        w.f32(v)?;
+    }
+    for &a in &m.ar {
+        w.f32(a)?;
+    }
+    Ok(())
+}
+
+fn read_model(r: &mut Reader<'_>) -> Result<ExtendedParams<f32, MAX_AR>, WireError> {
+    let bw = BoucWenParams { a1: r.f32()?, a: r.f32()?, a0: r.f32()?, gamma: r.f32()?, beta: r.f32()? };
+    let mut ar = [0.0f32; MAX_AR];
+    for a in &mut ar {
+        *a = r.f32()?;
+    }
+    Ok(ExtendedParams { bw, ar })
+}
+
+fn order_byte(order: u32) -> Result<u8, WireError> {
+    u8::try_from(order).map_err(|_| WireError::BadValue("harmonic order (at most 255 on the wire)"))
+}
+
+fn count_byte(n: usize) -> Result<u8, WireError> {
+    if n > MAX_HARMONICS {
+        return Err(WireError::BadValue("harmonic count"));
+    }
+    Ok(n as u8)
+}
+
+fn read_count(r: &mut Reader<'_>) -> Result<usize, WireError> {
+    let n = r.u8()? as usize;
+    if n > MAX_HARMONICS { Err(WireError::BadValue("harmonic count")) } else { Ok(n) }
+}
+
+impl ControllerParams {
+    fn write(&self, w: &mut Writer<'_>) -> Result<(), WireError> {
+        write_model(w, &self.model)?;
+        w.u64(self.drive.increment())?;
+        w.u32(self.sample_period_us)?;
+        w.f32(self.amplitude_um)?;
+        w.u32(self.fade_samples)?;
+        w.u8(count_byte(self.harmonics.len())?)?;
+        for m in 0..MAX_HARMONICS {
+            match self.harmonics.get(m) {
+                Some(h) => {
+                    w.u8(order_byte(h.order)?)?;
+                    w.f32(h.response.re)?;
+                    w.f32(h.response.im)?;
+                }
+                None => w.bytes(&[0; 9])?,
+            }
+        }
+        for v in [self.rls.lambda, self.rls.p0, self.rls.p_max, self.saturation.u_min, self.saturation.u_max]
+        {
+            w.f32(v)?;
+        }
+        w.f32(self.uc_max)
+    }
+
+    fn read(r: &mut Reader<'_>) -> Result<Self, WireError> {
+        let model = read_model(r)?;
+        let drive = Oscillator::from_increment(r.u64()?);
+        let sample_period_us = r.u32()?;
+        let amplitude_um = r.f32()?;
+        let fade_samples = r.u32()?;
+        let n = read_count(r)?;
+        let mut harmonics = Vec::new();
+        for m in 0..MAX_HARMONICS {
+            let order = r.u8()? as u32;
+            let response = Complex::new(r.f32()?, r.f32()?);
+            if m < n {
+                // n <= MAX_HARMONICS, so the push cannot fail.
+                let _ = harmonics.push(HarmonicSpec { order, response });
+            }
+        }
+        let rls = RlsConfig { lambda: r.f32()?, p0: r.f32()?, p_max: r.f32()? };
+        let saturation = Saturation { u_min: r.f32()?, u_max: r.f32()? };
+        let uc_max = r.f32()?;
+        Ok(Self {
+            model,
+            drive,
+            sample_period_us,
+            amplitude_um,
+            fade_samples,
+            harmonics,
+            rls,
+            saturation,
+            uc_max,
+        })
+    }
+}
+
+impl PlantParams {
+    fn write(&self, w: &mut Writer<'_>) -> Result<(), WireError> {
+        write_model(w, &self.base)?;
+        w.u64(self.drive.increment())?;
+        w.u8(count_byte(self.branches.len())?)?;
+        for m in 0..MAX_HARMONICS {
+            match self.branches.get(m) {
+                Some(b) => {
+                    w.u8(order_byte(b.order)?)?;
+                    w.f32(b.alpha_s)?;
+                    w.f32(b.alpha_c)?;
+                }
+                None => w.bytes(&[0; 9])?,
+            }
+        }
+        Ok(())
+    }
+
+    fn read(r: &mut Reader<'_>) -> Result<Self, WireError> {
+        let base = read_model(r)?;
+        let drive = Oscillator::from_increment(r.u64()?);
+        let n = read_count(r)?;
+        let mut branches = Vec::new();
+        for m in 0..MAX_HARMONICS {
+            let order = r.u8()? as u32;
+            let (alpha_s, alpha_c) = (r.f32()?, r.f32()?);
+            if m < n {
+                let _ = branches.push(HarmonicBranch { order, alpha_s, alpha_c, ar: [] });
+            }
+        }
+        Ok(Self { base, drive, branches })
+    }
+}
+
+impl Status {
+    fn counters(&self) -> [u32; 12] {
+        [
+            self.samples_done,
+            self.samples_total,
+            self.rx_frames,
+            self.rx_bad,
+            self.rx_lost,
+            self.tx_frames,
+            self.measurements_used,
+            self.measurements_missing,
+            self.measurements_stale,
+            self.rx_overflow_bytes,
+            self.tick_overruns,
+            self.compute_errors,
+        ]
+    }
+
+    fn read(r: &mut Reader<'_>) -> Result<Self, WireError> {
+        let (state, mode) = (r.u8()?, r.u8()?);
+        let mut c = [0u32; 12];
+        for v in &mut c {
+            *v = r.u32()?;
+        }
+        Ok(Self {
+            state,
+            mode,
+            samples_done: c[0],
+            samples_total: c[1],
+            rx_frames: c[2],
+            rx_bad: c[3],
+            rx_lost: c[4],
+            tx_frames: c[5],
+            measurements_used: c[6],
+            measurements_missing: c[7],
+            measurements_stale: c[8],
+            rx_overflow_bytes: c[9],
+            tick_overruns: c[10],
+            compute_errors: c[11],
+        })
+    }
+}
+
+impl Message {
+    /// The kind byte of this message.
+    pub fn kind(&self) -> u8 {
+        match self {
+            Message::GetStatus => kind::GET_STATUS,
+            Message::SetController(_) => kind::SET_CONTROLLER,
+            Message::SetPlant(_) => kind::SET_PLANT,
+            Message::Start { .. } => kind::START,
+            Message::Stop => kind::STOP,
+            Message::Measurement { .. } => kind::MEASUREMENT,
+            Message::Command { .. } => kind::COMMAND,
+            Message::Ack { .. } => kind::ACK,
+            Message::Status(_) => kind::STATUS,
+            Message::Fault(_) => kind::FAULT,
+        }
+    }
+
+    /// Writes the payload into `out` and returns its length.
+    pub fn encode_payload(&self, out: &mut [u8; MAX_PAYLOAD]) -> Result<usize, WireError> {
+        let mut w = Writer { buf: out, at: 0 };
+        match self {
+            Message::GetStatus | Message::Stop => {}
+            Message::SetController(p) => p.write(&mut w)?,
+            Message::SetPlant(p) => p.write(&mut w)?,
+            Message::Start { mode, samples } => {
+                w.u8(*mode as u8)?;
+                w.u32(*samples)?;
+            }
+            Message::Measurement { k, y } => {
+                w.u32(*k)?;
+                w.f32(*y)?;
+            }
+            Message::Command { k, u, used, flags } => {
+                w.u32(*k)?;
+                w.f32(*u)?;
+                w.u16(*used)?;
+                w.u8(*flags)?;
+            }
+            Message::Ack { kind, seq } => {
+                w.u8(*kind)?;
+                w.u16(*seq)?;
+            }
+            Message::Status(s) => {
+                w.u8(s.state)?;
+                w.u8(s.mode)?;
+                for c in s.counters() {
+                    w.u32(c)?;
+                }
+            }
+            Message::Fault(f) => {
+                w.u8(f.code as u8)?;
+                w.u16(f.seq)?;
+                w.u8(f.text.len() as u8)?;
+                w.bytes(f.text.as_bytes())?;
+            }
+        }
+        Ok(w.at)
+    }
+
+    /// Reads a message of kind `kind` from its payload. Never panics: every length, count,
+    /// enumeration and text is checked.
+    pub fn decode(kind: u8, payload: &[u8]) -> Result<Self, WireError> {
+        let mut r = Reader { buf: payload, at: 0 };
+        let msg = match kind {
+            kind::GET_STATUS => Message::GetStatus,
+            kind::SET_CONTROLLER => Message::SetController(ControllerParams::read(&mut r)?),
+            kind::SET_PLANT => Message::SetPlant(PlantParams::read(&mut r)?),
+            kind::START => {
+                let mode = match r.u8()? {
+                    1 => Mode::Control,
+                    2 => Mode::Plant,
+                    _ => return Err(WireError::BadValue("start mode")),
+                };
+                Message::Start { mode, samples: r.u32()? }
+            }
+            kind::STOP => Message::Stop,
+            kind::MEASUREMENT => Message::Measurement { k: r.u32()?, y: r.f32()? },
+            kind::COMMAND => Message::Command { k: r.u32()?, u: r.f32()?, used: r.u16()?, flags: r.u8()? },
+            kind::ACK => Message::Ack { kind: r.u8()?, seq: r.u16()? },
+            kind::STATUS => Message::Status(Status::read(&mut r)?),
+            kind::FAULT => {
+                let code = match r.u8()? {
+                    1 => FaultCode::BadFrame,
+                    2 => FaultCode::Unexpected,
+                    3 => FaultCode::NotConfigured,
+                    4 => FaultCode::InvalidParams,
+                    5 => FaultCode::Busy,
+                    _ => return Err(WireError::BadValue("fault code")),
+                };
+                let seq = r.u16()?;
+                let len = r.u8()? as usize;
+                let bytes = r.rest();
+                if bytes.len() != len || len > MAX_TEXT {
+                    return Err(WireError::BadLength);
+                }
+                let s =
+                    core::str::from_utf8(bytes).map_err(|_| WireError::BadValue("fault text (not UTF-8)"))?;
+                let text = String::try_from(s).map_err(|_| WireError::BadLength)?;
+                Message::Fault(Fault { code, seq, text })
+            }
+            other => return Err(WireError::UnknownKind(other)),
+        };
+        r.end()?;
+        Ok(msg)
+    }
+}
+
+const _: () = assert!(CONTROLLER_LEN == 95 && PLANT_LEN == 59 && STATUS_LEN == 50);

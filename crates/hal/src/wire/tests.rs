@@ -1,0 +1,442 @@
+//! Protocol tests: every message round-trips, arbitrary and corrupted byte streams never
+//! panic and never yield a wrong packet, and the board's state machine follows its table.
+
+use super::device::{ClosedLoop, Controller, Device, OnChipPlant, Reference, TimerRequest};
+use super::frame::{MAX_ENCODED, MAX_PAYLOAD};
+use super::message::*;
+use super::*;
+use boucwen_core::compensator::{HarmonicSpec, Saturation};
+use boucwen_core::model::{BoucWenParams, ExtendedParams, HarmonicBranch};
+use boucwen_core::rls::RlsConfig;
+use boucwen_core::signal::Oscillator;
+use nalgebra::Complex;
+use std::vec::Vec;
+
+/// xorshift64*: a small seeded generator for the property tests.
+struct Rng(u64);
+
+impl Rng {
+    fn next(&mut self) -> u64 {
+        self.0 ^= self.0 >> 12;
+        self.0 ^= self.0 << 25;
+        self.0 ^= self.0 >> 27;
+        self.0.wrapping_mul(0x2545_F491_4F6C_DD1D)
+    }
+    fn below(&mut self, n: u64) -> u64 {
+        self.next() % n
+    }
+    fn chance(&mut self, p: f64) -> bool {
+        ((self.next() >> 11) as f64 / (1u64 << 53) as f64) < p
+    }
+}
+
+fn model() -> ExtendedParams<f32, MAX_AR> {
+    let w0 = core::f64::consts::TAU * 70.0e-3;
+    ExtendedParams {
+        bw: BoucWenParams { a1: 20.0, a: 6.0, a0: 0.5, gamma: 2.0, beta: 3.0 },
+        ar: [(2.0 * 0.97 * w0.cos()) as f32, -0.97 * 0.97, 0.0],
+    }
+}
+
+pub(crate) fn controller_params(harmonics: &[(u32, f32, f32)]) -> ControllerParams {
+    ControllerParams {
+        model: model(),
+        drive: Oscillator::new(23.0, 1e-3).unwrap(),
+        sample_period_us: 1000,
+        amplitude_um: 20.0,
+        fade_samples: 500,
+        harmonics: harmonics
+            .iter()
+            .map(|&(order, re, im)| HarmonicSpec { order, response: Complex::new(re, im) })
+            .collect(),
+        rls: RlsConfig::with_forgetting(0.999, 1e-2),
+        saturation: Saturation::symmetric(10.0),
+        uc_max: 5.0,
+    }
+}
+
+pub(crate) fn plant_params() -> PlantParams {
+    PlantParams {
+        base: model(),
+        drive: Oscillator::new(23.0, 1e-3).unwrap(),
+        branches: [HarmonicBranch { order: 3, alpha_s: 0.10, alpha_c: -0.06, ar: [] }].into_iter().collect(),
+    }
+}
+
+fn every_message() -> Vec<Message> {
+    let mut text = heapless::String::new();
+    text.push_str("A1 is not finite").unwrap();
+    vec![
+        Message::GetStatus,
+        Message::SetController(controller_params(&[])),
+        Message::SetController(controller_params(&[(3, 1.5, -0.25), (5, -0.0, f32::MIN_POSITIVE)])),
+        Message::SetPlant(plant_params()),
+        Message::Start { mode: Mode::Control, samples: 5000 },
+        Message::Start { mode: Mode::Plant, samples: u32::MAX },
+        Message::Stop,
+        Message::Measurement { k: 7, y: -3.25e-7 },
+        Message::Measurement { k: u32::MAX, y: f32::NAN },
+        Message::Command { k: 1, u: 9.5, used: 0xA5A5, flags: command_flags::SATURATED },
+        Message::Ack { kind: kind::START, seq: 65_535 },
+        Message::Status(Status {
+            state: 2,
+            mode: 1,
+            samples_done: 1,
+            samples_total: 2,
+            rx_frames: 3,
+            rx_bad: 4,
+            rx_lost: 5,
+            tx_frames: 6,
+            measurements_used: 7,
+            measurements_missing: 8,
+            measurements_stale: 9,
+            rx_overflow_bytes: 10,
+            tick_overruns: 11,
+            compute_errors: u32::MAX,
+        }),
+        Message::Fault(Fault { code: FaultCode::InvalidParams, seq: 12, text }),
+        Message::Fault(Fault::new(FaultCode::BadFrame, 0xFFFF, "ü".repeat(40))),
+    ]
+}
+
+/// Bitwise equality (NaN payloads included), through the encoding itself.
+fn same(a: &Message, b: &Message) -> bool {
+    let (mut x, mut y) = ([0u8; MAX_PAYLOAD], [0u8; MAX_PAYLOAD]);
+    let (n, m) = (a.encode_payload(&mut x).unwrap(), b.encode_payload(&mut y).unwrap());
+    a.kind() == b.kind() && x[..n] == y[..m]
+}
+
+#[test]
+fn every_message_roundtrips_bit_for_bit() {
+    let mut stream = Vec::new();
+    let msgs = every_message();
+    for (i, m) in msgs.iter().enumerate() {
+        stream.extend_from_slice(&encode(i as u16 * 1000, m).unwrap());
+    }
+    let mut dec = Decoder::new();
+    let got: Vec<Packet> = stream.iter().filter_map(|&b| dec.push(b)).map(|r| r.unwrap()).collect();
+    assert_eq!(got.len(), msgs.len());
+    for (i, (g, m)) in got.iter().zip(&msgs).enumerate() {
+        assert_eq!(g.seq, i as u16 * 1000);
+        assert!(same(&g.msg, m), "{m:?} came back as {:?}", g.msg);
+        if !matches!(m, Message::Measurement { y, .. } if y.is_nan()) {
+            assert_eq!(&g.msg, m);
+        }
+    }
+    // The long fault text was cut on a character boundary.
+    let Message::Fault(f) = &msgs[msgs.len() - 1] else { unreachable!() };
+    assert_eq!(f.text.len(), 48);
+}
+
+#[test]
+fn frame_sizes_match_the_link_budget_in_the_docs() {
+    let cmd = encode(0xFFFF, &Message::Command { k: u32::MAX, u: -1.0, used: 0xFFFF, flags: 3 }).unwrap();
+    let meas = encode(0xFFFF, &Message::Measurement { k: u32::MAX, y: -1.0 }).unwrap();
+    assert_eq!((cmd.len(), meas.len()), (20, 17));
+    for m in every_message() {
+        assert!(encode(0, &m).unwrap().len() <= MAX_ENCODED);
+    }
+}
+
+#[test]
+fn layouts_are_checked_on_decode() {
+    // Wrong lengths, unknown kinds and enumerations.
+    assert_eq!(Message::decode(kind::GET_STATUS, &[0]), Err(WireError::BadLength));
+    assert_eq!(Message::decode(kind::MEASUREMENT, &[0; 7]), Err(WireError::BadLength));
+    assert_eq!(Message::decode(kind::MEASUREMENT, &[0; 9]), Err(WireError::BadLength));
+    assert_eq!(Message::decode(0x7F, &[]), Err(WireError::UnknownKind(0x7F)));
+    assert_eq!(Message::decode(kind::START, &[3, 0, 0, 0, 0]), Err(WireError::BadValue("start mode")));
+    assert_eq!(Message::decode(kind::FAULT, &[9, 0, 0, 0]), Err(WireError::BadValue("fault code")));
+    assert_eq!(Message::decode(kind::FAULT, &[1, 0, 0, 2, 0xC3]), Err(WireError::BadLength));
+    assert_eq!(
+        Message::decode(kind::FAULT, &[1, 0, 0, 1, 0xC3]),
+        Err(WireError::BadValue("fault text (not UTF-8)"))
+    );
+    let mut p = [0u8; MAX_PAYLOAD];
+    let n = Message::SetController(controller_params(&[(3, 1.0, 0.0)])).encode_payload(&mut p).unwrap();
+    p[52] = 3; // harmonic count
+    assert_eq!(Message::decode(kind::SET_CONTROLLER, &p[..n]), Err(WireError::BadValue("harmonic count")));
+    let mut too_high = controller_params(&[(300, 1.0, 0.0)]);
+    assert!(encode(0, &Message::SetController(too_high.clone())).is_err());
+    too_high.harmonics.clear();
+    assert!(encode(0, &Message::SetController(too_high)).is_ok());
+}
+
+/// Feeds `bytes` through a decoder; returns the packets and the number of rejected frames.
+fn decode_stream(bytes: &[u8]) -> (Vec<Packet>, usize) {
+    let mut dec = Decoder::new();
+    let (mut ok, mut bad) = (Vec::new(), 0);
+    for &b in bytes {
+        match dec.push(b) {
+            Some(Ok(p)) => ok.push(p),
+            Some(Err(_)) => bad += 1,
+            None => {}
+        }
+    }
+    (ok, bad)
+}
+
+#[test]
+fn random_bytes_never_panic_and_almost_never_decode() {
+    let mut rng = Rng(0x5EED_0001);
+    let mut accepted = 0;
+    for _ in 0..2_000 {
+        let len = rng.below(400) as usize;
+        // Mostly random bytes with delimiters sprinkled in, so many candidate frames form.
+        let bytes: Vec<u8> = (0..len).map(|_| if rng.chance(0.05) { 0 } else { rng.next() as u8 }).collect();
+        accepted += decode_stream(&bytes).0.len();
+    }
+    // A random candidate frame passes only with a 2^-32 CRC collision and a valid layout.
+    assert_eq!(accepted, 0);
+}
+
+#[test]
+fn corrupted_streams_lose_frames_but_never_deliver_a_wrong_one() {
+    let mut rng = Rng(0x5EED_0002);
+    let msgs = every_message();
+    for round in 0..300 {
+        // A stream of known packets...
+        let sent: Vec<Packet> = (0..40)
+            .map(|i| Packet { seq: i, msg: msgs[rng.below(msgs.len() as u64) as usize].clone() })
+            .collect();
+        let clean: Vec<u8> = sent.iter().flat_map(|p| encode(p.seq, &p.msg).unwrap()).collect();
+        // ... with bytes dropped, flipped, inserted at a per-byte rate up to 5 %.
+        let rate = 0.05 * (round % 10) as f64 / 10.0;
+        let mut dirty = Vec::new();
+        for &b in &clean {
+            if rng.chance(rate) {
+                match rng.below(3) {
+                    0 => continue,
+                    1 => dirty.push(b ^ (1 << rng.below(8))),
+                    _ => {
+                        dirty.push(b);
+                        dirty.push(rng.next() as u8);
+                    }
+                }
+            } else {
+                dirty.push(b);
+            }
+        }
+        let (got, _bad) = decode_stream(&dirty);
+        // Every packet delivered is one that was sent, intact, in order.
+        let mut next = 0usize;
+        for g in &got {
+            let pos = sent[next..].iter().position(|s| s.seq == g.seq).map(|p| p + next);
+            let pos = pos.unwrap_or_else(|| panic!("round {round}: seq {} out of order or invented", g.seq));
+            assert!(same(&g.msg, &sent[pos].msg), "round {round}: packet {} altered", g.seq);
+            next = pos + 1;
+        }
+        if rate == 0.0 {
+            assert_eq!(got.len(), sent.len());
+        }
+    }
+}
+
+#[test]
+fn reference_fades_in_and_matches_the_core_sine_after() {
+    let p = controller_params(&[]);
+    let mut r = Reference::new(&p);
+    let mut sine = boucwen_core::signal::Sine::new(p.amplitude_um, p.drive);
+    let mut worst_fade_err: f64 = 0.0;
+    for k in 0..2000u32 {
+        let d = r.next_sample();
+        let s = sine.next_sample();
+        if k >= p.fade_samples {
+            assert_eq!(d.to_bits(), s.to_bits(), "k = {k}");
+        } else {
+            let w = 0.5 - 0.5 * (core::f64::consts::PI * k as f64 / p.fade_samples as f64).cos();
+            let want = w * 20.0 * (core::f64::consts::TAU * 23.0e-3 * k as f64).sin();
+            worst_fade_err = worst_fade_err.max((d as f64 - want).abs());
+        }
+    }
+    assert!(worst_fade_err < 1e-5, "fade-in off by {worst_fade_err} µm");
+}
+
+#[test]
+fn the_closed_loop_tracks_and_cancels_the_harmonic() {
+    let g = boucwen_core::compensator::harmonic_response(
+        &ExtendedParams {
+            bw: BoucWenParams { a1: 20.0, a: 6.0, a0: 0.5, gamma: 2.0, beta: 3.0 },
+            ar: [2.0 * 0.97 * (core::f64::consts::TAU * 70.0e-3).cos(), -0.97 * 0.97],
+        },
+        3,
+        23.0,
+        1e-3,
+        boucwen_core::compensator::PhaseRule::Model,
+    );
+    let rms_after = |harmonics: &[(u32, f32, f32)]| {
+        let ctl = Controller::new(&controller_params(harmonics)).unwrap();
+        let mut cl = ClosedLoop::new(ctl, OnChipPlant::new(&plant_params()).unwrap());
+        let mut sq = 0.0f64;
+        for k in 0..20_000 {
+            let s = cl.control().unwrap();
+            let y = cl.actuate(s.out.u);
+            if k >= 10_000 {
+                sq += ((y - s.d) as f64).powi(2);
+            }
+        }
+        (sq / 10_000.0).sqrt()
+    };
+    let uf = rms_after(&[]);
+    let proposed = rms_after(&[(3, g.re as f32, g.im as f32)]);
+    assert!(uf > 1.0 && proposed < 0.2, "u_f alone {uf} µm, proposed {proposed} µm");
+}
+
+/// Drives a device with messages and collects what it sends.
+struct Bench {
+    dev: Device,
+    seq: u16,
+    out: Vec<Packet>,
+}
+
+impl Bench {
+    fn new() -> Self {
+        Self { dev: Device::new(), seq: 0, out: Vec::new() }
+    }
+    fn sink(out: &mut Vec<Packet>) -> impl FnMut(&[u8]) + '_ {
+        |bytes: &[u8]| {
+            let mut d = Decoder::new();
+            out.extend(bytes.iter().filter_map(|&b| d.push(b)).map(|r| r.unwrap()));
+        }
+    }
+    fn send(&mut self, msg: Message) -> TimerRequest {
+        let seq = self.seq;
+        self.seq = self.seq.wrapping_add(1);
+        self.dev.on_packet(Ok(Packet { seq, msg }), &mut Self::sink(&mut self.out))
+    }
+    fn tick(&mut self) -> TimerRequest {
+        self.dev.on_tick(0, &mut Self::sink(&mut self.out))
+    }
+    fn take(&mut self) -> Vec<Message> {
+        self.out.drain(..).map(|p| p.msg).collect()
+    }
+}
+
+#[test]
+fn device_configures_validates_and_refuses_out_of_turn() {
+    let mut b = Bench::new();
+    assert_eq!(b.send(Message::Start { mode: Mode::Control, samples: 3 }), TimerRequest::Keep);
+    assert!(matches!(&b.take()[..], [Message::Fault(Fault { code: FaultCode::NotConfigured, seq: 0, .. })]));
+    let mut bad = controller_params(&[]);
+    bad.model.bw.gamma = f32::INFINITY;
+    b.send(Message::SetController(bad));
+    match &b.take()[..] {
+        [Message::Fault(f)] => {
+            assert_eq!((f.code, f.text.as_str()), (FaultCode::InvalidParams, "gamma is not finite"))
+        }
+        other => panic!("{other:?}"),
+    }
+    b.send(Message::SetController(controller_params(&[(3, 1.0, 0.5)])));
+    assert_eq!(b.take(), [Message::Ack { kind: kind::SET_CONTROLLER, seq: 2 }]);
+    assert_eq!(
+        b.send(Message::Start { mode: Mode::Control, samples: 3 }),
+        TimerRequest::Start { period_us: 1000 }
+    );
+    assert_eq!(b.take(), [Message::Ack { kind: kind::START, seq: 3 }]);
+    b.send(Message::SetPlant(plant_params()));
+    assert!(matches!(&b.take()[..], [Message::Fault(Fault { code: FaultCode::Busy, .. })]));
+    b.send(Message::Command { k: 0, u: 1.0, used: 0, flags: 0 });
+    assert!(matches!(&b.take()[..], [Message::Fault(Fault { code: FaultCode::Unexpected, .. })]));
+    b.dev.on_packet(Err(WireError::Crc), &mut Bench::sink(&mut b.out));
+    match &b.take()[..] {
+        [Message::Fault(f)] => {
+            assert_eq!((f.code, f.seq, f.text.as_str()), (FaultCode::BadFrame, 0xFFFF, "frame: CRC mismatch"))
+        }
+        other => panic!("{other:?}"),
+    }
+    assert_eq!(b.send(Message::Stop), TimerRequest::Stop);
+    match &b.take()[..] {
+        [Message::Status(s)] => assert_eq!((s.state, s.rx_bad, s.rx_frames), (RunState::Idle as u8, 1, 3)),
+        other => panic!("{other:?}"),
+    }
+}
+
+#[test]
+fn control_run_matches_the_controller_and_reports_measurement_use() {
+    let p = controller_params(&[(3, 2.0, -1.0)]);
+    let mut b = Bench::new();
+    b.send(Message::SetController(p.clone()));
+    b.send(Message::Start { mode: Mode::Control, samples: 6 });
+    b.take();
+    // Reference: the same controller fed what the device is fed.
+    let mut reference = Controller::new(&p).unwrap();
+    // Measurements for samples 0, 1, 3 arrive in time; 2 never; 4 arrives late.
+    let ys = [0.5f32, 1.5, 2.5, 3.5, 4.5];
+    let mut expect_used = 0u16;
+    for k in 0..6u32 {
+        let y_prev = match k {
+            1 | 2 | 4 => Some(ys[k as usize - 1]),
+            _ => None,
+        };
+        if k == 5 {
+            // y[4] for the tick that has passed already: stale.
+            b.send(Message::Measurement { k: 3, y: 9.0 });
+        }
+        let req = b.tick();
+        let want = reference.step(y_prev).unwrap();
+        expect_used = (expect_used << 1) | y_prev.is_some() as u16;
+        let msgs = b.take();
+        match &msgs[0] {
+            Message::Command { k: kk, u, used, .. } => {
+                assert_eq!((*kk, u.to_bits(), *used), (k, want.out.u.to_bits(), expect_used), "k = {k}");
+            }
+            other => panic!("{other:?}"),
+        }
+        if k == 5 {
+            assert_eq!(req, TimerRequest::Stop);
+            match &msgs[1] {
+                Message::Status(s) => {
+                    assert_eq!(s.samples_done, 6);
+                    assert_eq!(
+                        (s.measurements_used, s.measurements_missing, s.measurements_stale),
+                        (3, 2, 1)
+                    );
+                    assert_eq!(s.state, RunState::Idle as u8);
+                }
+                other => panic!("{other:?}"),
+            }
+        } else {
+            assert_eq!(req, TimerRequest::Keep);
+        }
+        if matches!(k, 0 | 1 | 3) {
+            b.send(Message::Measurement { k, y: ys[k as usize] });
+        }
+    }
+    // A further tick does nothing.
+    assert_eq!(b.tick(), TimerRequest::Keep);
+    assert!(b.take().is_empty());
+}
+
+#[test]
+fn plant_run_holds_the_last_input_over_lost_commands() {
+    let mut b = Bench::new();
+    b.send(Message::SetPlant(plant_params()));
+    b.send(Message::Start { mode: Mode::Plant, samples: 4 });
+    b.take();
+    let mut plant = OnChipPlant::new(&plant_params()).unwrap();
+    b.send(Message::Command { k: 0, u: 0.25, used: 0, flags: 0 });
+    let y0 = plant.step(0.25);
+    assert_eq!(b.take(), [Message::Measurement { k: 0, y: y0 }]);
+    // Commands 1 and 2 lost: the plant holds 0.25 V through them.
+    b.send(Message::Command { k: 3, u: -0.5, used: 0, flags: 0 });
+    plant.step(0.25);
+    plant.step(0.25);
+    let y3 = plant.step(-0.5);
+    let msgs = b.take();
+    assert_eq!(msgs[0], Message::Measurement { k: 3, y: y3 });
+    assert!(matches!(&msgs[1], Message::Status(s) if s.samples_done == 4 && s.state == RunState::Idle as u8));
+}
+
+#[test]
+fn device_counts_lost_frames_from_sequence_gaps() {
+    let mut b = Bench::new();
+    b.send(Message::GetStatus); // seq 0
+    b.seq = 5; // 1..4 vanished
+    b.dev.on_packet(Err(WireError::Crc), &mut Bench::sink(&mut b.out)); // one of them arrived damaged
+    b.send(Message::GetStatus);
+    let msgs = b.take();
+    match msgs.last() {
+        Some(Message::Status(s)) => assert_eq!((s.rx_frames, s.rx_bad, s.rx_lost), (2, 1, 3)),
+        other => panic!("{other:?}"),
+    }
+}
