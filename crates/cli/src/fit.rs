@@ -258,6 +258,9 @@ pub struct OeOptions {
     pub skip: usize,
     /// Levenberg–Marquardt iterations per start.
     pub max_iter: usize,
+    /// Levenberg–Marquardt starts: the best this many (at least 1) of the grid's candidates
+    /// and the given start models.
+    pub lm_starts: usize,
     /// A known structure (AR part, e.g. from a broadband record): the search over
     /// resonances is skipped and the fit refines from this structure. A record at one drive
     /// frequency pins only one complex gain of the structure, so without it the structure of
@@ -286,6 +289,7 @@ impl Default for OeOptions {
             max_samples: 4000,
             skip: 200,
             max_iter: 40,
+            lm_starts: 3,
             structure: None,
             fix_structure: false,
             require_invertible: true,
@@ -652,7 +656,7 @@ fn fit_oe_once(
 
     // Stage C: Levenberg–Marquardt from the best few.
     let mut best: Option<(Phi, Solution)> = None;
-    for &(_, phi) in cands.iter().take(3) {
+    for &(_, phi) in cands.iter().take(opt.lm_starts.max(1)) {
         let first_free = if opt.fix_structure && opt.structure.is_some() { 2 } else { 0 };
         if let Some((p, s)) = prob.levenberg_marquardt(phi, opt.max_iter, first_free) {
             if best.as_ref().is_none_or(|b| s.cost < b.1.cost) {
