@@ -1,2 +1,74 @@
-//! placeholder
-fn main() {}
+//! `cargo xtask`: the firmware's build, its self-test in QEMU and hardware in the loop.
+//!
+//! ```text
+//! cargo xtask firmware                  build the firmware, print its flash and RAM use
+//! cargo xtask qemu [--json]             self-test in QEMU, bit-exact against the host
+//! cargo xtask hil [--inject-faults R]   the board in QEMU on a pseudo-terminal, the host
+//!                 [--json]              driving the virtual bimorph over the serial link
+//! cargo xtask flash                     an STM32F4 board: build-only target, probe-rs
+//! ```
+//! Every task checks the tools it needs first and names the Debian package of each missing
+//! one; all failures are listed before the task exits non-zero.
+
+mod elf;
+mod qemu;
+mod tools;
+
+use clap::{Parser, Subcommand};
+use std::process::ExitCode;
+
+#[derive(Parser)]
+#[command(name = "cargo xtask", about = "Firmware builds, QEMU runs and hardware in the loop for boucwen")]
+struct Cli {
+    #[command(subcommand)]
+    task: Task,
+}
+
+#[derive(Subcommand)]
+enum Task {
+    /// Build the firmware for thumbv7em-none-eabihf and report its flash and RAM use.
+    Firmware,
+    /// Run the firmware's self-test in QEMU (mps2-an386) and compare it with the host bit for bit.
+    Qemu {
+        /// Samples of the self-test (at least 1000).
+        #[arg(long, default_value_t = 2000)]
+        samples: u32,
+        /// End with one JSON line of the figures (the report goes to stderr).
+        #[arg(long)]
+        json: bool,
+    },
+}
+
+fn finish(failures: Vec<String>) -> ExitCode {
+    if failures.is_empty() {
+        return ExitCode::SUCCESS;
+    }
+    for f in &failures {
+        eprintln!("xtask: {f}");
+    }
+    eprintln!("xtask: {} failure(s)", failures.len());
+    ExitCode::FAILURE
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    match cli.task {
+        Task::Firmware => match tools::build_firmware() {
+            Ok(elf) => match qemu::describe(&elf) {
+                Ok(s) => {
+                    println!("{s}");
+                    finish(vec![])
+                }
+                Err(e) => finish(vec![e]),
+            },
+            Err(e) => finish(e),
+        },
+        Task::Qemu { samples, json } => {
+            let (summary, failures) = qemu::run(samples, json);
+            if let (true, Some(s)) = (json, &summary) {
+                println!("{}", qemu::json_line(s));
+            }
+            finish(failures)
+        }
+    }
+}
