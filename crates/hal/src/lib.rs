@@ -7,7 +7,11 @@
 #![cfg_attr(not(feature = "std"), no_std)]
 
 #[cfg(feature = "std")]
+pub mod hil;
+#[cfg(feature = "std")]
 pub mod plant;
 #[cfg(feature = "std")]
 pub mod record;
+#[cfg(feature = "std")]
+pub mod transport;
 pub mod wire;

@@ -1,0 +1,738 @@
+//! Hardware in the loop: the board computes `u[k]` every sample, the host is its actuator.
+//!
+//! The host configures the board ([`crate::wire::message::ControllerParams`]), starts a
+//! control run of `n` samples and then, for every `Command{k, u[k]}` the board sends on its
+//! own sample clock, applies `u[k]` to a [`Plant`] (the virtual bimorph, a model, or a
+//! real actuator behind it) and sends back `Measurement{k, y[k]}`, which the board uses at
+//! its next tick.
+//!
+//! ## Faults and accounting
+//! With a fault rate the host damages both directions at that rate per byte
+//! ([`crate::transport::FaultInjector`]): bytes it sends before writing them, bytes it
+//! receives before decoding them. Every damaged frame is caught by the frame checks (COBS,
+//! CRC-32C, layout) or shows as a gap in the sender's sequence numbers, and nothing stops:
+//! * a command that does not arrive (rejected or missing) is replaced by the last applied
+//!   input, as a driver's DAC holds its output; the sample is logged as
+//!   [`InputSource::Held`] when the next command shows the gap;
+//! * a measurement that does not arrive makes the board step without it (the compensator
+//!   skips that sample's adaptation); each command carries the board's record of which of
+//!   its last 16 steps had their measurement, so the host logs every sample's
+//!   [`MeasurementFate`] even across lost commands.
+//!
+//! Every sample `0..n` gets exactly one [`SampleRecord`]. After the run the host asks the
+//! board (over a clean link) for its counters and checks that they account for every
+//! sample: steps with and without a measurement add up to `n - 1`, and agree with what the
+//! host learnt sample by sample ([`HilReport::samples_accounted`]).
+//!
+//! ## Shadow check
+//! The host runs the same controller ([`crate::wire::device::Controller`], `f32`, the
+//! same code as the firmware) fed exactly what the board reports it used, and compares
+//! every command it receives with it bit for bit ([`HilReport::shadow_mismatches`]). A
+//! corrupted frame that slipped through the checks, or a firmware that computes something
+//! else, shows there.
+
+use crate::plant::{Plant, PlantError};
+use crate::transport::{FaultCounts, Link, LinkStats, Port, TransportError};
+use crate::wire::device::{Controller, Reference};
+use crate::wire::message::{ControllerParams, Fault, Message, Mode, RunState, Status};
+use std::fmt;
+use std::time::{Duration, Instant};
+
+/// Settings of a run.
+#[derive(Clone, Copy, Debug)]
+pub struct HilOptions {
+    /// Samples to run.
+    pub samples: u32,
+    /// Probability that a byte is damaged, each direction (0: a clean link).
+    pub fault_rate: f64,
+    /// Seed of the fault injection.
+    pub seed: u64,
+    /// The tracking RMSE is taken from this sample on.
+    pub settle_samples: u32,
+    /// How long to wait for the board's answer to a configuration request.
+    pub reply_timeout: Duration,
+    /// Silence on the link that ends the run's exchange.
+    pub link_timeout: Duration,
+}
+
+impl HilOptions {
+    /// `samples` samples on a clean link; RMSE after the first fifth (at least the fade-in
+    /// of 500 samples); 0.5 s per configuration request, 2 s of silence ends the run.
+    pub fn new(samples: u32) -> Self {
+        Self {
+            samples,
+            fault_rate: 0.0,
+            seed: 1,
+            settle_samples: (samples / 5).max(500).min(samples / 2),
+            reply_timeout: Duration::from_millis(500),
+            link_timeout: Duration::from_secs(2),
+        }
+    }
+}
+
+/// Where the input applied at a sample came from.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum InputSource {
+    /// The board's command for this sample.
+    Commanded,
+    /// The command was lost or rejected: the last input was held.
+    Held,
+}
+
+/// What the board did with a sample's measurement (used by its next step or not).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum MeasurementFate {
+    /// The next step used it.
+    Used,
+    /// The next step ran without it (lost, damaged or late).
+    Missed,
+    /// The commands that would say were lost; the board's totals account for it.
+    Unknown,
+    /// The last sample of the run: no step follows.
+    Last,
+}
+
+/// One sample of the run.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SampleRecord {
+    /// Sample index.
+    pub k: u32,
+    /// The reference `d[k]`, µm (the board's, recomputed on the host).
+    pub d_um: f32,
+    /// The input applied, V.
+    pub u_v: f32,
+    /// The plant's output, µm.
+    pub y_um: f64,
+    /// Where `u_v` came from.
+    pub input: InputSource,
+    /// What happened to the measurement.
+    pub measurement: MeasurementFate,
+}
+
+/// The result of a run.
+#[derive(Clone, Debug)]
+pub struct HilReport {
+    /// Samples run.
+    pub samples: u32,
+    /// Samples with exactly one record and a fate consistent with the board's counters;
+    /// equals `samples` unless something was silently lost.
+    pub samples_accounted: u32,
+    /// Commands received and applied.
+    pub commands_applied: u32,
+    /// Samples at which the last input was held.
+    pub commands_held: u32,
+    /// Frames rejected by their checks, host and board together.
+    pub corrupted_frames: u64,
+    /// Frames that vanished (sequence gaps not explained by rejected frames), both sides.
+    pub lost_frames: u64,
+    /// Tracking RMSE `√mean((y − d)²)` from [`HilOptions::settle_samples`] on, µm.
+    pub rmse_um: f64,
+    /// Commands compared with the host's shadow controller.
+    pub shadow_checked: u32,
+    /// Commands that differed from it.
+    pub shadow_mismatches: u32,
+    /// Frames the host received during the run.
+    pub host_link: LinkStats,
+    /// The board's counters after the run.
+    pub board: Status,
+    /// Bytes damaged on purpose: `(sent, received)`.
+    pub injected: (FaultCounts, FaultCounts),
+    /// Commands that came for a sample already past (not applied).
+    pub stale_commands: u32,
+    /// Rejections (`Fault`) the board sent during the run.
+    pub board_faults: u32,
+    /// Inconsistencies found by the accounting (empty when all is well).
+    pub problems: Vec<String>,
+    /// Every sample.
+    pub log: Vec<SampleRecord>,
+}
+
+/// Why a run could not be done.
+#[derive(Debug)]
+pub enum HilError {
+    /// The link failed.
+    Link(TransportError),
+    /// The board refused a request.
+    Refused {
+        /// What was asked.
+        request: &'static str,
+        /// The board's fault.
+        fault: Fault,
+    },
+    /// The board did not answer.
+    NoAnswer {
+        /// What was asked.
+        request: &'static str,
+        /// The port.
+        port: String,
+    },
+    /// The plant failed.
+    Plant(PlantError),
+    /// The options are unusable.
+    Options(&'static str),
+}
+
+impl fmt::Display for HilError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            HilError::Link(e) => write!(f, "link: {e}"),
+            HilError::Refused { request, fault } => {
+                write!(f, "the board refused {request}: {:?}: {}", fault.code, fault.text)
+            }
+            HilError::NoAnswer { request, port } => {
+                write!(f, "{port}: no answer from the board to {request}")
+            }
+            HilError::Plant(e) => write!(f, "plant: {e}"),
+            HilError::Options(what) => write!(f, "options: {what}"),
+        }
+    }
+}
+
+impl std::error::Error for HilError {
+    fn source(&self) -> Option<&(dyn std::error::Error + 'static)> {
+        match self {
+            HilError::Link(e) => Some(e),
+            HilError::Plant(e) => Some(e),
+            _ => None,
+        }
+    }
+}
+
+impl From<TransportError> for HilError {
+    fn from(e: TransportError) -> Self {
+        HilError::Link(e)
+    }
+}
+
+/// Sends `msg` and waits for its `Ack` (or the `Fault` naming it).
+fn configure<P: Port>(
+    link: &mut Link<P>,
+    msg: &Message,
+    request: &'static str,
+    opts: &HilOptions,
+) -> Result<(), HilError> {
+    let want = msg.kind();
+    let answer = link.request(msg, 3, opts.reply_timeout, |seq, m| match m {
+        Message::Ack { kind, seq: s } if *kind == want && *s == seq => Some(Ok(())),
+        Message::Fault(f) if f.seq == seq => Some(Err(f.clone())),
+        _ => None,
+    })?;
+    match answer {
+        Some(Ok(())) => Ok(()),
+        Some(Err(fault)) => Err(HilError::Refused { request, fault }),
+        None => Err(HilError::NoAnswer { request, port: link.port_name() }),
+    }
+}
+
+/// Asks for the board's status until it is no longer running (or `patience` runs out).
+fn final_status<P: Port>(
+    link: &mut Link<P>,
+    opts: &HilOptions,
+    patience: Duration,
+) -> Result<Status, HilError> {
+    let until = Instant::now() + patience;
+    loop {
+        link.flush_peer()?;
+        link.discard_input();
+        let s = link.request(&Message::GetStatus, 3, opts.reply_timeout, |_, m| match m {
+            Message::Status(s) => Some(*s),
+            _ => None,
+        })?;
+        match s {
+            Some(s) if s.state != RunState::Running as u8 => return Ok(s),
+            Some(_) if Instant::now() < until => std::thread::sleep(Duration::from_millis(50)),
+            Some(s) => return Ok(s),
+            None => return Err(HilError::NoAnswer { request: "GetStatus", port: link.port_name() }),
+        }
+    }
+}
+
+/// The host's replica of the board's controller, stepped as the board reports.
+struct Shadow {
+    controller: Controller,
+    next: u32,
+    alive: bool,
+    checked: u32,
+    mismatches: u32,
+}
+
+/// Runs the board in a control run of `opts.samples` samples with `plant` as its actuator.
+pub fn run<P: Port>(
+    link: &mut Link<P>,
+    plant: &mut dyn Plant,
+    params: &ControllerParams,
+    opts: &HilOptions,
+) -> Result<HilReport, HilError> {
+    let n = opts.samples;
+    if n < 2 {
+        return Err(HilError::Options("at least 2 samples"));
+    }
+    let controller = Controller::new(params).map_err(|e| HilError::Refused {
+        request: "SetController (checked on the host)",
+        fault: Fault::new(crate::wire::message::FaultCode::InvalidParams, 0, e),
+    })?;
+
+    // Configuration over a clean link.
+    link.inject_faults(None, 0);
+    link.flush_peer()?;
+    link.discard_input();
+    let stopped = link.request(&Message::Stop, 3, opts.reply_timeout, |_, m| {
+        matches!(m, Message::Status(_)).then_some(())
+    })?;
+    if stopped.is_none() {
+        return Err(HilError::NoAnswer { request: "Stop", port: link.port_name() });
+    }
+    configure(link, &Message::SetController(params.clone()), "SetController", opts)?;
+    configure(link, &Message::Start { mode: Mode::Control, samples: n }, "Start", opts)?;
+    let stats0 = link.stats();
+    let injected0 = link.fault_counts();
+    if opts.fault_rate > 0.0 {
+        link.inject_faults(Some(opts.fault_rate), opts.seed);
+    }
+
+    let mut reference = Reference::new(params);
+    let mut log: Vec<SampleRecord> = Vec::with_capacity(n as usize);
+    let mut sent_y: Vec<Option<f32>> = vec![None; n as usize];
+    let mut shadow = Shadow { controller, next: 0, alive: true, checked: 0, mismatches: 0 };
+    let mut problems = Vec::new();
+    let (mut last_u, mut stale, mut board_faults) = (0.0f32, 0u32, 0u32);
+    let mut board_done = None;
+
+    let mut apply = |log: &mut Vec<SampleRecord>, u: f32, input: InputSource| -> Result<f64, HilError> {
+        let k = log.len() as u32;
+        let y = plant.step(u as f64).map_err(HilError::Plant)?;
+        let measurement = if k + 1 == n { MeasurementFate::Last } else { MeasurementFate::Unknown };
+        log.push(SampleRecord { k, d_um: reference.next_sample(), u_v: u, y_um: y, input, measurement });
+        Ok(y)
+    };
+
+    while board_done.is_none() {
+        let Some(r) = link.recv(Instant::now() + opts.link_timeout)? else {
+            break;
+        };
+        let Ok(packet) = r else { continue };
+        match packet.msg {
+            Message::Command { k, u, used, .. } => {
+                let next = log.len() as u32;
+                if k < next || k >= n {
+                    stale += 1;
+                    continue;
+                }
+                while (log.len() as u32) < k {
+                    apply(&mut log, last_u, InputSource::Held)?;
+                }
+                let y = apply(&mut log, u, InputSource::Commanded)?;
+                last_u = u;
+                if k + 1 < n {
+                    link.send(&Message::Measurement { k, y: y as f32 })?;
+                    sent_y[k as usize] = Some(y as f32);
+                }
+                // Bit i: the step of sample k - i used y[k - i - 1].
+                for i in 0..16u32.min(k) {
+                    let j = (k - i - 1) as usize;
+                    log[j].measurement =
+                        if used >> i & 1 == 1 { MeasurementFate::Used } else { MeasurementFate::Missed };
+                }
+                if shadow.alive {
+                    if k - shadow.next >= 16 {
+                        shadow.alive = false;
+                        problems.push(format!(
+                            "shadow check stopped at sample {}: more than 16 commands in a row were lost",
+                            shadow.next
+                        ));
+                    } else {
+                        while shadow.next <= k {
+                            let j = shadow.next;
+                            let y_prev =
+                                if j > 0 && used >> (k - j) & 1 == 1 { sent_y[j as usize - 1] } else { None };
+                            if j > 0 && used >> (k - j) & 1 == 1 && y_prev.is_none() {
+                                problems.push(format!(
+                                    "the board used a measurement of sample {} never sent",
+                                    j - 1
+                                ));
+                            }
+                            match shadow.controller.step(y_prev) {
+                                Ok(s) if j == k => {
+                                    shadow.checked += 1;
+                                    if s.out.u.to_bits() != u.to_bits() {
+                                        shadow.mismatches += 1;
+                                    }
+                                }
+                                Ok(_) => {}
+                                Err(e) => problems.push(format!("shadow step {j}: {e}")),
+                            }
+                            shadow.next += 1;
+                        }
+                    }
+                }
+            }
+            Message::Status(s) if s.state != RunState::Running as u8 => board_done = Some(s),
+            Message::Fault(_) => board_faults += 1,
+            _ => {}
+        }
+    }
+
+    // The rest over a clean link.
+    let stats1 = link.stats();
+    link.inject_faults(None, 0);
+    let injected1 = link.fault_counts();
+    let board = final_status(link, opts, Duration::from_secs(5))?;
+    if board.samples_done < n {
+        problems.push(format!("the board stopped after {} of {n} samples", board.samples_done));
+    }
+    while (log.len() as u32) < n {
+        apply(&mut log, last_u, InputSource::Held)?;
+    }
+
+    // Accounting.
+    let count = |f: MeasurementFate| log.iter().filter(|r| r.measurement == f).count() as u32;
+    let (used, missed, unknown) =
+        (count(MeasurementFate::Used), count(MeasurementFate::Missed), count(MeasurementFate::Unknown));
+    let steps_with_prev = board.measurements_used + board.measurements_missing;
+    let indices_ok = log.iter().enumerate().all(|(i, r)| r.k as usize == i) && log.len() == n as usize;
+    let fates_ok = steps_with_prev == n - 1
+        && board.measurements_used >= used
+        && board.measurements_missing >= missed
+        && (board.measurements_used - used) + (board.measurements_missing - missed) == unknown;
+    if !indices_ok {
+        problems.push("the sample log is not one record per sample".into());
+    }
+    if !fates_ok {
+        problems.push(format!(
+            "measurement accounting: board used {} and missed {} (of {} steps), host saw {used} used, {missed} missed, {unknown} unknown",
+            board.measurements_used,
+            board.measurements_missing,
+            n - 1
+        ));
+    }
+    let samples_accounted = if !indices_ok {
+        0
+    } else if fates_ok {
+        n
+    } else {
+        n - unknown
+    };
+    let commands_applied = log.iter().filter(|r| r.input == InputSource::Commanded).count() as u32;
+    let host_link = LinkStats {
+        tx_frames: stats1.tx_frames - stats0.tx_frames,
+        rx_frames: stats1.rx_frames - stats0.rx_frames,
+        rx_bad: stats1.rx_bad - stats0.rx_bad,
+        rx_lost: stats1.rx_lost - stats0.rx_lost,
+    };
+    let diff = |a: FaultCounts, b: FaultCounts| FaultCounts {
+        bytes: a.bytes - b.bytes,
+        dropped: a.dropped - b.dropped,
+        corrupted: a.corrupted - b.corrupted,
+    };
+    let injected = (diff(injected1.0, injected0.0), diff(injected1.1, injected0.1));
+    let from = (opts.settle_samples as usize).min(log.len());
+    let tail = &log[from..];
+    let rmse_um = (tail.iter().map(|r| (r.y_um - r.d_um as f64).powi(2)).sum::<f64>()
+        / tail.len().max(1) as f64)
+        .sqrt();
+    Ok(HilReport {
+        samples: n,
+        samples_accounted,
+        commands_applied,
+        commands_held: n - commands_applied,
+        corrupted_frames: host_link.rx_bad + board.rx_bad as u64,
+        lost_frames: host_link.rx_lost + board.rx_lost as u64,
+        rmse_um,
+        shadow_checked: shadow.checked,
+        shadow_mismatches: shadow.mismatches,
+        host_link,
+        board,
+        injected,
+        stale_commands: stale,
+        board_faults,
+        problems,
+        log,
+    })
+}
+
+impl HilReport {
+    /// The summary line of `--json`.
+    pub fn json(&self) -> String {
+        let rmse = if self.rmse_um.is_finite() { format!("{}", self.rmse_um) } else { "null".into() };
+        format!(
+            "{{\"samples\": {}, \"samples_accounted\": {}, \"corrupted_frames\": {}, \"lost_frames\": {}, \"rmse_um\": {rmse}}}",
+            self.samples, self.samples_accounted, self.corrupted_frames, self.lost_frames
+        )
+    }
+
+    /// A human-readable summary, one fact per line.
+    pub fn summary(&self) -> String {
+        let b = &self.board;
+        let (tx, rx) = self.injected;
+        format!(
+            "samples: {} run, {} accounted\n\
+             commands: {} applied, {} held (lost or rejected), {} stale\n\
+             measurements (board): {} used, {} missing, {} stale\n\
+             frames: {} corrupted (host {}, board {}), {} lost (host {}, board {})\n\
+             injected: sent {} bytes ({} dropped, {} flipped), received {} bytes ({} dropped, {} flipped)\n\
+             shadow: {} commands compared bit for bit, {} differ\n\
+             tracking RMSE: {:.4} µm\n\
+             board: {} tick overruns, {} bytes overflowed, {} compute errors",
+            self.samples,
+            self.samples_accounted,
+            self.commands_applied,
+            self.commands_held,
+            self.stale_commands,
+            b.measurements_used,
+            b.measurements_missing,
+            b.measurements_stale,
+            self.corrupted_frames,
+            self.host_link.rx_bad,
+            b.rx_bad,
+            self.lost_frames,
+            self.host_link.rx_lost,
+            b.rx_lost,
+            tx.bytes,
+            tx.dropped,
+            tx.corrupted,
+            rx.bytes,
+            rx.dropped,
+            rx.corrupted,
+            self.shadow_checked,
+            self.shadow_mismatches,
+            self.rmse_um,
+            b.tick_overruns,
+            b.rx_overflow_bytes,
+            b.compute_errors,
+        )
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::transport::{MemoryPort, SerialPort};
+    use crate::wire::Decoder;
+    use crate::wire::device::{Device, TimerRequest};
+    use crate::wire::message::MAX_AR;
+    use boucwen_core::compensator::{HarmonicSpec, PhaseRule, Saturation, harmonic_response};
+    use boucwen_core::model::{
+        BoucWenParams, EnhancedParams, EnhancedState, ExtendedParams, HarmonicBranch, Model,
+    };
+    use boucwen_core::rls::RlsConfig;
+    use boucwen_core::signal::Oscillator;
+    use nalgebra::Complex;
+    use std::sync::Arc;
+    use std::sync::atomic::{AtomicBool, Ordering};
+
+    const TS: f64 = 1e-3;
+
+    fn ext() -> ExtendedParams<f64, 2> {
+        let w0 = std::f64::consts::TAU * 70.0 * TS;
+        ExtendedParams {
+            bw: BoucWenParams { a1: 20.0, a: 6.0, a0: 0.5, gamma: 2.0, beta: 3.0 },
+            ar: [2.0 * 0.97 * w0.cos(), -0.97 * 0.97],
+        }
+    }
+
+    /// The core's enhanced model (f64) as the actuator: a third harmonic of 23 Hz.
+    struct ModelPlant {
+        model: EnhancedParams<f64, 2, 0, 1>,
+        state: EnhancedState<f64, 2, 0, 1>,
+    }
+
+    impl ModelPlant {
+        fn new() -> Self {
+            let model = EnhancedParams {
+                base: ext(),
+                branches: [HarmonicBranch { order: 3, alpha_s: 0.10, alpha_c: -0.06, ar: [] }],
+                drive: Oscillator::new(23.0, TS).unwrap(),
+            };
+            Self { state: model.initial_state(), model }
+        }
+    }
+
+    impl Plant for ModelPlant {
+        fn step(&mut self, u_v: f64) -> Result<f64, PlantError> {
+            Ok(self.model.step(&mut self.state, u_v))
+        }
+        fn sample_interval(&self) -> f64 {
+            TS
+        }
+        fn reset(&mut self) -> Result<(), PlantError> {
+            self.state = self.model.initial_state();
+            Ok(())
+        }
+        fn name(&self) -> &str {
+            "enhanced model"
+        }
+    }
+
+    fn params() -> ControllerParams {
+        let e = ext();
+        let m = |x: f64| x as f32;
+        let g = harmonic_response(&e, 3, 23.0, TS, PhaseRule::Model);
+        let mut ar = [0.0f32; MAX_AR];
+        ar[0] = m(e.ar[0]);
+        ar[1] = m(e.ar[1]);
+        ControllerParams {
+            model: ExtendedParams {
+                bw: BoucWenParams { a1: 20.0, a: 6.0, a0: 0.5, gamma: 2.0, beta: 3.0 },
+                ar,
+            },
+            drive: Oscillator::new(23.0, TS).unwrap(),
+            sample_period_us: 1000,
+            amplitude_um: 20.0,
+            fade_samples: 500,
+            harmonics: [HarmonicSpec { order: 3, response: Complex::new(m(g.re), m(g.im)) }]
+                .into_iter()
+                .collect(),
+            rls: RlsConfig::with_forgetting(0.999, 1e-2),
+            saturation: Saturation::symmetric(10.0),
+            uc_max: 5.0,
+        }
+    }
+
+    /// A board in a thread: the firmware's `Device` on `port`. It ticks as soon as the
+    /// measurement of its last command is in, or `patience` after the last tick (so the
+    /// test runs at the host's pace and a lost measurement costs only `patience`).
+    fn board<P: Port + Send + 'static>(
+        mut port: P,
+        patience: Duration,
+    ) -> (Arc<AtomicBool>, std::thread::JoinHandle<()>) {
+        let stop = Arc::new(AtomicBool::new(false));
+        let stop2 = stop.clone();
+        let h = std::thread::spawn(move || {
+            let mut dev = Device::new();
+            let mut dec = Decoder::new();
+            let mut ticking = false;
+            let mut last_tick = Instant::now();
+            let mut buf = [0u8; 256];
+            while !stop2.load(Ordering::Relaxed) {
+                let n = match port.read_timeout(&mut buf, Duration::from_micros(200)) {
+                    Ok(n) => n,
+                    Err(_) => return,
+                };
+                let mut out = Vec::new();
+                let mut send = |b: &[u8]| out.extend_from_slice(b);
+                for &b in &buf[..n] {
+                    if let Some(p) = dec.push(b) {
+                        let measured = matches!(&p, Ok(pk) if matches!(pk.msg, Message::Measurement { .. }));
+                        match dev.on_packet(p, &mut send) {
+                            TimerRequest::Start { .. } => {
+                                ticking = true;
+                                last_tick = Instant::now() - patience;
+                            }
+                            TimerRequest::Stop => ticking = false,
+                            TimerRequest::Keep => {}
+                        }
+                        if measured {
+                            // Time to tick: force it below.
+                            last_tick = Instant::now() - patience;
+                        }
+                    }
+                }
+                if ticking && last_tick.elapsed() >= patience {
+                    last_tick = Instant::now();
+                    if dev.on_tick(0, &mut send) == TimerRequest::Stop {
+                        ticking = false;
+                    }
+                }
+                if !out.is_empty() && port.write_all(&out).is_err() {
+                    return;
+                }
+            }
+        });
+        (stop, h)
+    }
+
+    fn run_over<P: Port>(port: P, board_port: impl Port + Send + 'static, opts: HilOptions) -> HilReport {
+        let (stop, h) = board(board_port, Duration::from_millis(3));
+        let mut link = Link::new(port);
+        let mut plant = ModelPlant::new();
+        let r = run(&mut link, &mut plant, &params(), &opts).unwrap();
+        stop.store(true, Ordering::Relaxed);
+        drop(link);
+        h.join().unwrap();
+        r
+    }
+
+    /// The same controller and plant without a link: the RMSE the loop should reach.
+    fn ideal_rmse(n: u32, settle: u32) -> f64 {
+        let mut c = Controller::new(&params()).unwrap();
+        let mut p = ModelPlant::new();
+        let mut y_prev = None;
+        let mut sq = 0.0;
+        for k in 0..n {
+            let s = c.step(y_prev).unwrap();
+            let y = p.step(s.out.u as f64).unwrap();
+            y_prev = Some(y as f32);
+            if k >= settle {
+                sq += (y - s.d as f64).powi(2);
+            }
+        }
+        (sq / (n - settle) as f64).sqrt()
+    }
+
+    #[test]
+    fn clean_link_reproduces_the_loop_exactly() {
+        let (a, b) = MemoryPort::pair();
+        let opts = HilOptions::new(3000);
+        let r = run_over(a, b, opts);
+        assert!(r.problems.is_empty(), "{:?}", r.problems);
+        assert_eq!((r.samples, r.samples_accounted, r.commands_applied), (3000, 3000, 3000));
+        assert_eq!((r.corrupted_frames, r.lost_frames, r.shadow_mismatches), (0, 0, 0));
+        assert_eq!(r.shadow_checked, 3000);
+        assert_eq!((r.board.measurements_used, r.board.measurements_missing), (2999, 0));
+        // Every measurement was used, so the run is the ideal loop, bit for bit in u.
+        let ideal = ideal_rmse(3000, opts.settle_samples);
+        assert!((r.rmse_um - ideal).abs() < 1e-9, "{} vs {ideal}", r.rmse_um);
+        assert!(r.rmse_um < 0.5, "{}", r.rmse_um);
+    }
+
+    #[test]
+    fn faults_are_detected_and_every_sample_accounted() {
+        let (a, b) = MemoryPort::pair();
+        let opts = HilOptions { fault_rate: 0.01, seed: 7, ..HilOptions::new(3000) };
+        let r = run_over(a, b, opts);
+        assert!(r.problems.is_empty(), "{:?}", r.problems);
+        assert_eq!(r.samples_accounted, 3000);
+        assert_eq!(r.commands_applied + r.commands_held, 3000);
+        assert!(r.commands_held > 0 && r.board.measurements_missing > 0);
+        assert!(r.corrupted_frames > 0, "{}", r.summary());
+        // No damaged frame was taken for a good one: the shadow agrees everywhere.
+        assert_eq!(r.shadow_mismatches, 0);
+        assert!(r.shadow_checked >= r.commands_applied.saturating_sub(1));
+        let (tx, rx) = r.injected;
+        assert!(tx.dropped + tx.corrupted > 0 && rx.dropped + rx.corrupted > 0);
+        // Held inputs and skipped adaptation cost a little tracking.
+        assert!(r.rmse_um.is_finite() && r.rmse_um < 2.0, "{}", r.summary());
+    }
+
+    #[test]
+    fn runs_over_a_real_pseudo_terminal() {
+        let (master, slave) = serialport::TTYPort::pair().expect("a pseudo-terminal pair");
+        let host = SerialPort::from_port(Box::new(slave), "pty slave");
+        let dev = SerialPort::from_port(Box::new(master), "pty master");
+        let r = run_over(host, dev, HilOptions::new(1000));
+        assert!(r.problems.is_empty(), "{:?}", r.problems);
+        assert_eq!(
+            (r.samples_accounted, r.corrupted_frames, r.lost_frames, r.shadow_mismatches),
+            (1000, 0, 0, 0)
+        );
+    }
+
+    #[test]
+    fn a_silent_board_is_an_error_naming_the_request() {
+        let (a, _b) = MemoryPort::pair();
+        let mut link = Link::new(a);
+        let opts = HilOptions { reply_timeout: Duration::from_millis(20), ..HilOptions::new(10) };
+        let e = run(&mut link, &mut ModelPlant::new(), &params(), &opts).unwrap_err();
+        assert_eq!(e.to_string(), "memory port A: no answer from the board to Stop");
+    }
+
+    #[test]
+    fn invalid_parameters_are_refused_before_sending() {
+        let (a, _b) = MemoryPort::pair();
+        let mut link = Link::new(a);
+        let mut p = params();
+        p.rls.lambda = 1.5;
+        let e = run(&mut link, &mut ModelPlant::new(), &p, &HilOptions::new(10)).unwrap_err();
+        assert!(e.to_string().contains("forgetting factor (must be in (0, 1])"), "{e}");
+    }
+}
