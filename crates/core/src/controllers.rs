@@ -70,10 +70,9 @@
 //! The two placements trade differently on a lightly damped actuator. `T` carries the PI's
 //! integrator, so learning through it is strong at low frequencies and weak near the
 //! resonance, and it leaves the resonance out of the stability condition; `S·P_n` is flat
-//! below the resonance but peaks there, which caps `k_r` for every frequency. On the
-//! default virtual bimorph (resonance 68 Hz, pole radius 0.995 at 1 kHz) the rule below
-//! gives `k_r = 1` at the PI's input and `k_r ≈ 0.01` at the plant input, and the PI's
-//! input wins at most reference frequencies.
+//! below the resonance but peaks there, which caps `k_r` for every frequency: the sharper
+//! the resonance, the smaller the learning gain the rule below allows at the plant input,
+//! while at the PI's input the Ms-bounded loop keeps `|T|` moderate at the resonance.
 //!
 //! ### Where this departs from Li et al., and why
 //! 1. **Fractional half period.** `N/2` is rarely an integer (1 kHz / 23 Hz / 2 = 21.74
@@ -112,8 +111,8 @@
 //!   from 0 meets the bound is found in closed form per frequency (the bound is a
 //!   quadratic in `ki`); the pair with the largest `ki` wins (`ki ≤ 1`, the deadbeat
 //!   integrator). Then `Kp = kp/G0`, `Ki = ki/(G0·Ts)`. A lightly damped resonance makes
-//!   this design integral-dominant with a crossover far below the resonance (0.43 Hz on the
-//!   default virtual bimorph); that is what a PI can do there.
+//!   this design integral-dominant with a crossover far below the resonance; that is what a
+//!   PI can do there.
 //! * **ORC.** For `a ∈ {1/4, 1/10, 1/20, 1/40, 1/100}` and `m ∈ 0..=min(32, L0 - 2)`, the
 //!   largest learning gain `k_max(a, m)` with `ρ(ω) ≤ 1` at every grid frequency and
 //!   every `κ` (closed form per frequency); then `k_r = min(1, k_max/2)` (a learning gain
