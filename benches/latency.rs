@@ -9,6 +9,7 @@
 //! | `step/{classic,extended,enhanced3}/{f32,f64}` | one `Model::step` |
 //! | `rls/11/{f64,f32}`, `rls/7/f64` | one `Rls::update` (11 = the enhanced model's parameter count) |
 //! | `compensator/step/{f64,f32}` | one `Compensator::step`: `u_f`, the harmonic RLS update, saturation |
+//! | `controller/{pi,orc}/f32` | one `Controller::step` of the peer controllers: the PI, or the PI with the odd-harmonic repetitive controller (delay line of 512) |
 //! | `baseline/rls11_dmatrix` | the same RLS update written plainly with nalgebra's `DMatrix` |
 //!
 //! Every benchmark carries its state from one iteration to the next and feeds it the next
@@ -26,6 +27,7 @@ use boucwen_core::Real;
 use boucwen_core::compensator::{
     Compensator, CompensatorConfig, HarmonicSpec, PhaseRule, Saturation, harmonic_response,
 };
+use boucwen_core::controllers::{Controller, ORC_CAPACITY, OrcController, PiController, TuneOptions, tune};
 use boucwen_core::model::{BoucWenParams, Classic, EnhancedParams, ExtendedParams, HarmonicBranch, Model};
 use boucwen_core::rls::{Rls, RlsConfig};
 use boucwen_core::signal::{Oscillator, Sine};
@@ -147,6 +149,53 @@ fn compensator_run<T: Real>() -> (Compensator<T, 2, 1>, Vec<(T, T)>) {
     let start = comp.clone();
     let record = (0..LEN).map(|_| run(&mut comp, &mut y_prev)).collect();
     (start, record)
+}
+
+/// A peer controller tuned from the benchmark's model (the rule of `boucwen_core::controllers`)
+/// after a 20 000-sample closed-loop run on the enhanced plant, with the next `LEN` samples
+/// of that run as `(d[k], y[k-1])` (periodic, so the controller stays in its steady state).
+fn controller_run<T: Real, C: Controller<T> + Clone>(mut ctrl: C) -> (C, Vec<(T, T)>) {
+    let plant = EnhancedParams::<T, 2, 0, 1> {
+        base: extended(),
+        branches: [HarmonicBranch { order: 3, alpha_s: T::lit(0.10), alpha_c: T::lit(-0.06), ar: [] }],
+        drive: drive(),
+    };
+    let mut state = plant.initial_state();
+    let mut reference = Sine::new(T::lit(20.0), drive());
+    let mut y_prev = None;
+    let mut run = |ctrl: &mut C, y_prev: &mut Option<T>| {
+        let d = reference.next_sample();
+        let out = ctrl.step(d, *y_prev).expect("finite closed loop");
+        let y = plant.step(&mut state, out.u);
+        let sample = (d, y_prev.unwrap_or(T::zero()));
+        *y_prev = Some(y);
+        sample
+    };
+    for _ in 0..20_000 {
+        run(&mut ctrl, &mut y_prev);
+    }
+    let start = ctrl.clone();
+    let record = (0..LEN).map(|_| run(&mut ctrl, &mut y_prev)).collect();
+    (start, record)
+}
+
+/// `controller/<name>/<type>`: one `Controller::step` per iteration, replaying a closed-loop
+/// record.
+fn bench_controller<T: Real, C: Controller<T> + Clone>(c: &mut Criterion, id: &str, ctrl: C) {
+    let (mut ctrl, record) = controller_run::<T, C>(ctrl);
+    let mut k = 0;
+    let mut last = None;
+    c.bench_function(id, |b| {
+        b.iter(|| {
+            let (d, y) = record[k];
+            let out = ctrl.step(black_box(d), black_box(Some(y)));
+            k = if k + 1 == LEN { 0 } else { k + 1 };
+            last = out.ok();
+            black_box(out)
+        })
+    });
+    let out = last.expect("at least one step");
+    assert!(out.u.is_finite() && out.u_fb.is_finite() && out.u_rc.is_finite(), "{id}: {out:?}");
 }
 
 /// `step/<name>/<type>`: one model step per iteration.
@@ -288,6 +337,12 @@ fn latency(c: &mut Criterion) {
     bench_rls::<f64, 7>(c, "rls/7/f64");
     bench_compensator::<f64>(c, "compensator/step/f64");
     bench_compensator::<f32>(c, "compensator/step/f32");
+    let tuning =
+        tune(&extended::<f32>(), drive(), TS as f32, Saturation::symmetric(10.0), &TuneOptions::default())
+            .expect("the benchmark's model can be tuned");
+    bench_controller(c, "controller/pi/f32", PiController::new(tuning.pi.pi).expect("tuned PI"));
+    let orc = OrcController::<f32, ORC_CAPACITY>::new(tuning.pi.pi, tuning.orc.orc).expect("tuned ORC");
+    bench_controller(c, "controller/orc/f32", orc);
     bench_baseline(c);
 }
 
