@@ -38,8 +38,9 @@ pub fn run(board: &mut Board) -> ! {
             let req = device.on_tick(missed, &mut |bytes: &[u8]| uart.write(bytes));
             apply(board, req, &mut seen);
         }
+        let mid_frame = decoder.pending() > 0;
         cortex_m::interrupt::free(|_| {
-            if RX.is_empty() && TICKS.load(Ordering::Acquire) == seen {
+            if !mid_frame && RX.is_empty() && TICKS.load(Ordering::Acquire) == seen {
                 cortex_m::asm::wfi();
             }
         });
