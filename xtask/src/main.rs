@@ -11,6 +11,7 @@
 //! one; all failures are listed before the task exits non-zero.
 
 mod elf;
+mod hil;
 mod qemu;
 mod tools;
 
@@ -34,6 +35,19 @@ enum Task {
         #[arg(long, default_value_t = 2000)]
         samples: u32,
         /// End with one JSON line of the figures (the report goes to stderr).
+        #[arg(long)]
+        json: bool,
+    },
+    /// Hardware in the loop: the firmware in QEMU on a pseudo-terminal, `boucwen hil` driving
+    /// the virtual bimorph against it over the serial link.
+    Hil {
+        /// Damage this fraction of the bytes in each direction (dropped or one bit flipped).
+        #[arg(long, value_name = "RATE")]
+        inject_faults: Option<f64>,
+        /// Samples to run.
+        #[arg(long, default_value_t = 5000)]
+        samples: u32,
+        /// End with one JSON line of the figures.
         #[arg(long)]
         json: bool,
     },
@@ -69,6 +83,9 @@ fn main() -> ExitCode {
                 println!("{}", qemu::json_line(s));
             }
             finish(failures)
+        }
+        Task::Hil { inject_faults, samples, json } => {
+            finish(hil::run(&hil::Options { inject_faults, json, samples }))
         }
     }
 }

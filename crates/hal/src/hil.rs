@@ -168,6 +168,8 @@ pub enum HilError {
     },
     /// The plant failed.
     Plant(PlantError),
+    /// The controller's parameters were rejected, or a step failed, on the host.
+    Controller(boucwen_core::Error),
     /// The options are unusable.
     Options(&'static str),
 }
@@ -183,6 +185,7 @@ impl fmt::Display for HilError {
                 write!(f, "{port}: no answer from the board to {request}")
             }
             HilError::Plant(e) => write!(f, "plant: {e}"),
+            HilError::Controller(e) => write!(f, "controller: {e}"),
             HilError::Options(what) => write!(f, "options: {what}"),
         }
     }
@@ -193,6 +196,7 @@ impl std::error::Error for HilError {
         match self {
             HilError::Link(e) => Some(e),
             HilError::Plant(e) => Some(e),
+            HilError::Controller(e) => Some(e),
             _ => None,
         }
     }
@@ -267,10 +271,7 @@ pub fn run<P: Port>(
     if n < 2 {
         return Err(HilError::Options("at least 2 samples"));
     }
-    let controller = Controller::new(params).map_err(|e| HilError::Refused {
-        request: "SetController (checked on the host)",
-        fault: Fault::new(crate::wire::message::FaultCode::InvalidParams, 0, e),
-    })?;
+    let controller = Controller::new(params).map_err(HilError::Controller)?;
 
     // Configuration over a clean link.
     link.inject_faults(None, 0);
@@ -450,6 +451,42 @@ pub fn run<P: Port>(
     })
 }
 
+/// The same loop without the link: `params`' controller and `plant` stepped in-process,
+/// every measurement used at the next step. Returns the tracking RMSE from `settle` on,
+/// µm, the figure a run over a perfect link reaches.
+pub fn without_link(
+    plant: &mut dyn Plant,
+    params: &ControllerParams,
+    samples: u32,
+    settle: u32,
+) -> Result<f64, HilError> {
+    let mut c = Controller::new(params).map_err(HilError::Controller)?;
+    let (mut y_prev, mut sq, mut count) = (None, 0.0, 0u32);
+    for k in 0..samples {
+        let s = c.step(y_prev).map_err(HilError::Controller)?;
+        let y = plant.step(s.out.u as f64).map_err(HilError::Plant)?;
+        y_prev = Some(y as f32);
+        if k >= settle {
+            sq += (y - s.d as f64).powi(2);
+            count += 1;
+        }
+    }
+    Ok((sq / count.max(1) as f64).sqrt())
+}
+
+/// Opens the serial device `port` and runs: what `boucwen hil --port PATH` does once it
+/// has its controller and plant.
+pub fn run_on_port(
+    port: &str,
+    baud: u32,
+    plant: &mut dyn Plant,
+    params: &ControllerParams,
+    opts: &HilOptions,
+) -> Result<HilReport, HilError> {
+    let mut link = Link::new(crate::transport::open_serial(port, baud)?);
+    run(&mut link, plant, params, opts)
+}
+
 impl HilReport {
     /// The summary line of `--json`.
     pub fn json(&self) -> String {
@@ -458,6 +495,19 @@ impl HilReport {
             "{{\"samples\": {}, \"samples_accounted\": {}, \"corrupted_frames\": {}, \"lost_frames\": {}, \"rmse_um\": {rmse}}}",
             self.samples, self.samples_accounted, self.corrupted_frames, self.lost_frames
         )
+    }
+
+    /// `Ok` when every sample is accounted for, the shadow agrees with every command and
+    /// the accounting found nothing wrong; otherwise what is wrong.
+    pub fn verdict(&self) -> Result<(), String> {
+        let mut bad = self.problems.clone();
+        if self.samples_accounted != self.samples {
+            bad.push(format!("{} of {} samples accounted for", self.samples_accounted, self.samples));
+        }
+        if self.shadow_mismatches > 0 {
+            bad.push(format!("{} commands differ from the host's shadow controller", self.shadow_mismatches));
+        }
+        if bad.is_empty() { Ok(()) } else { Err(bad.join("; ")) }
     }
 
     /// A human-readable summary, one fact per line.
@@ -652,23 +702,6 @@ mod tests {
         r
     }
 
-    /// The same controller and plant without a link: the RMSE the loop should reach.
-    fn ideal_rmse(n: u32, settle: u32) -> f64 {
-        let mut c = Controller::new(&params()).unwrap();
-        let mut p = ModelPlant::new();
-        let mut y_prev = None;
-        let mut sq = 0.0;
-        for k in 0..n {
-            let s = c.step(y_prev).unwrap();
-            let y = p.step(s.out.u as f64).unwrap();
-            y_prev = Some(y as f32);
-            if k >= settle {
-                sq += (y - s.d as f64).powi(2);
-            }
-        }
-        (sq / (n - settle) as f64).sqrt()
-    }
-
     #[test]
     fn clean_link_reproduces_the_loop_exactly() {
         let (a, b) = MemoryPort::pair();
@@ -680,7 +713,7 @@ mod tests {
         assert_eq!(r.shadow_checked, 3000);
         assert_eq!((r.board.measurements_used, r.board.measurements_missing), (2999, 0));
         // Every measurement was used, so the run is the ideal loop, bit for bit in u.
-        let ideal = ideal_rmse(3000, opts.settle_samples);
+        let ideal = without_link(&mut ModelPlant::new(), &params(), 3000, opts.settle_samples).unwrap();
         assert!((r.rmse_um - ideal).abs() < 1e-9, "{} vs {ideal}", r.rmse_um);
         assert!(r.rmse_um < 0.5, "{}", r.rmse_um);
     }
