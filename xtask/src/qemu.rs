@@ -16,11 +16,9 @@ use crate::tools::{self, Finished};
 use boucwen_core::compensator::{HarmonicSpec, PhaseRule, Saturation, harmonic_response};
 use boucwen_core::model::{BoucWenParams, ExtendedParams, HarmonicBranch};
 use boucwen_core::rls::RlsConfig;
-use boucwen_core::signal::Oscillator;
 use boucwen_hal::wire::device::{ClosedLoop, Controller, OnChipPlant};
-use boucwen_hal::wire::message::{ControllerParams, MAX_AR, Mode, PlantParams};
+use boucwen_hal::wire::message::{ControllerParams, Mode, PlantParams, ReferenceSpec};
 use boucwen_hal::wire::{self, Decoder, Message};
-use nalgebra::Complex;
 use std::path::Path;
 use std::time::Duration;
 
@@ -33,57 +31,74 @@ pub const FLASH_BUDGET: u32 = 64 * 1024;
 /// Budget: RAM bytes.
 pub const RAM_BUDGET: u32 = 16 * 1024;
 
-/// The self-test's actuator and controller: a plant in µm per volt with a lightly damped
-/// resonance near 70 Hz, the Bouc–Wen loop of the core's tests and a third harmonic of
-/// 23 Hz (about 15 % of the 20 µm reference); the compensator inverts the plant's extended
-/// part and cancels the third harmonic with the model's phase at 69 Hz.
-pub fn scenario() -> (ControllerParams, PlantParams) {
+/// A self-test case: drive frequency and the plant's harmonic branches (order, `α_s`, `α_c`
+/// in µm), all of which the compensator cancels.
+pub struct Case {
+    /// Name in the report.
+    pub name: &'static str,
+    /// Drive frequency, Hz.
+    pub drive_hz: f64,
+    /// The plant's harmonic branches.
+    pub branches: &'static [(u32, f32, f32)],
+}
+
+/// The cases run: the paper's 23 Hz with its third harmonic, and the worst case the board
+/// supports (two cancelled harmonics: the third and fifth of 14 Hz, the fifth on the
+/// resonance).
+pub const CASES: [Case; 2] = [
+    Case { name: "23 Hz, 3rd harmonic", drive_hz: 23.0, branches: &[(3, 0.10, -0.06)] },
+    Case {
+        name: "14 Hz, 3rd and 5th harmonics",
+        drive_hz: 14.0,
+        branches: &[(3, 0.05, 0.03), (5, 0.08, -0.04)],
+    },
+];
+
+/// The self-test's actuator and controller for `case`: a plant in µm per volt with a
+/// lightly damped resonance near 70 Hz, the Bouc–Wen loop of the core's tests and the
+/// case's harmonic branches; the compensator inverts the plant's extended part exactly and
+/// cancels every branch with the model's phase at `n·f`. Reference: 20 µm, faded in over
+/// 0.5 s.
+pub fn scenario(case: &Case) -> Result<(ControllerParams, PlantParams), String> {
     let w0 = std::f64::consts::TAU * 70.0 * TS;
     let ext = ExtendedParams::<f64, 2> {
         bw: BoucWenParams { a1: 20.0, a: 6.0, a0: 0.5, gamma: 2.0, beta: 3.0 },
         ar: [2.0 * 0.97 * w0.cos(), -0.97 * 0.97],
     };
-    let mut ar = [0.0f32; MAX_AR];
-    for (a, &b) in ar.iter_mut().zip(&ext.ar) {
-        *a = b as f32;
-    }
-    let bw = ext.bw;
-    let model = ExtendedParams {
-        bw: BoucWenParams {
-            a1: bw.a1 as f32,
-            a: bw.a as f32,
-            a0: bw.a0 as f32,
-            gamma: bw.gamma as f32,
-            beta: bw.beta as f32,
-        },
-        ar,
-    };
-    let drive = Oscillator::new(23.0, TS).expect("23 Hz at 1 kHz is below Nyquist");
-    let g = harmonic_response(&ext, 3, 23.0, TS, PhaseRule::Model);
-    let controller = ControllerParams {
-        model,
-        drive,
-        sample_period_us: 1000,
-        amplitude_um: 20.0,
-        fade_samples: 500,
-        harmonics: [HarmonicSpec { order: 3, response: Complex::new(g.re as f32, g.im as f32) }]
-            .into_iter()
-            .collect(),
-        rls: RlsConfig::with_forgetting(0.999, 1e-2),
-        saturation: Saturation::symmetric(10.0),
-        uc_max: 5.0,
-    };
+    let harmonics: Vec<HarmonicSpec<f64>> = case
+        .branches
+        .iter()
+        .map(|&(order, _, _)| HarmonicSpec {
+            order,
+            response: harmonic_response(&ext, order, case.drive_hz, TS, PhaseRule::Model),
+        })
+        .collect();
+    let reference = ReferenceSpec { freq_hz: case.drive_hz, amplitude_um: 20.0, fade_s: 0.5 };
+    let controller = ControllerParams::from_design(
+        &ext,
+        &harmonics,
+        RlsConfig::with_forgetting(0.999, 1e-2),
+        Saturation::symmetric(10.0),
+        5.0,
+        reference,
+        TS,
+    )
+    .map_err(|e| format!("{}: {e}", case.name))?;
     let plant = PlantParams {
-        base: model,
-        drive,
-        branches: [HarmonicBranch { order: 3, alpha_s: 0.10, alpha_c: -0.06, ar: [] }].into_iter().collect(),
+        base: controller.model,
+        drive: controller.drive,
+        branches: case
+            .branches
+            .iter()
+            .map(|&(order, alpha_s, alpha_c)| HarmonicBranch { order, alpha_s, alpha_c, ar: [] })
+            .collect(),
     };
-    (controller, plant)
+    Ok((controller, plant))
 }
 
-/// The frames file of a self-test of `samples` samples.
-pub fn frames(samples: u32) -> Result<Vec<u8>, String> {
-    let (c, p) = scenario();
+/// The frames file of a self-test of `case` for `samples` samples.
+pub fn frames(case: &Case, samples: u32) -> Result<Vec<u8>, String> {
+    let (c, p) = scenario(case)?;
     let mut out = Vec::new();
     let msgs =
         [Message::SetController(c), Message::SetPlant(p), Message::Start { mode: Mode::Control, samples }];
@@ -165,21 +180,158 @@ fn parse(stdout: &str) -> Printed {
     p
 }
 
-/// The self-test's figures.
+/// The self-test's figures (worst case over the cases).
 pub struct Summary {
-    /// Samples compared.
+    /// Samples compared, all cases.
     pub samples: usize,
     /// Largest |u_firmware − u_host|, V.
     pub max_abs_diff: f64,
-    /// Mean instructions per control step.
+    /// Mean instructions per control step, largest over the cases.
     pub insns_per_sample: f64,
     /// Flash bytes.
     pub flash_bytes: u32,
-    /// RAM bytes (statics and peak stack).
+    /// RAM bytes (statics and the largest peak stack).
     pub ram_bytes: u32,
 }
 
-/// Builds, runs and checks; returns the figures and every failure found.
+/// One case's results.
+struct CaseResult {
+    samples: usize,
+    mismatches: usize,
+    max_abs_diff: f64,
+    insns_per_tick: f64,
+    insns_per_sample: f64,
+    max_step_insns: f64,
+    stack: u32,
+    rmse_um: f64,
+}
+
+/// Runs `case` in QEMU and compares it with the host; failures go to `failures`.
+fn run_case(
+    elf: &Path,
+    case: &Case,
+    index: usize,
+    samples: u32,
+    failures: &mut Vec<String>,
+) -> Option<CaseResult> {
+    let mut fail = |what: String| failures.push(format!("{}: {what}", case.name));
+    let frames = match frames(case, samples) {
+        Ok(f) => f,
+        Err(e) => {
+            fail(e);
+            return None;
+        }
+    };
+    let path = tools::firmware_target_dir().join(format!("selftest-{index}.frames"));
+    if let Err(e) = std::fs::write(&path, &frames) {
+        fail(format!("{}: {e}", path.display()));
+        return None;
+    }
+    let host = match host_run(&frames) {
+        Ok(h) => h,
+        Err(e) => {
+            fail(e);
+            return None;
+        }
+    };
+    let path_str = path.to_string_lossy().into_owned();
+    if path_str.contains([' ', ',']) {
+        fail(format!("{path_str}: the frames path must not contain spaces or commas (QEMU arguments)"));
+        return None;
+    }
+    eprintln!("running the self-test in QEMU: {} ({samples} samples)", case.name);
+    let cmd = tools::qemu_command(elf, &["selftest", &path_str], "null");
+    let Finished { status, stdout, stderr } = match tools::run_with_limit(cmd, Duration::from_secs(300)) {
+        Ok(f) => f,
+        Err(e) => {
+            fail(e);
+            return None;
+        }
+    };
+    match status {
+        None => fail("QEMU did not finish within 300 s".into()),
+        Some(s) if !s.success() => fail(format!("the firmware exited with {s}")),
+        _ => {}
+    }
+    if !stderr.trim().is_empty() {
+        eprintln!("qemu stderr: {}", stderr.trim());
+    }
+    let printed = parse(&stdout);
+    for e in &printed.errors {
+        fail(e.clone());
+    }
+    if !printed.done {
+        fail("the firmware did not finish the self-test (no 'done' line)".into());
+    }
+    // Bit-for-bit comparison.
+    if printed.samples.len() != host.len() {
+        fail(format!(
+            "the firmware printed {} samples, the host computed {}",
+            printed.samples.len(),
+            host.len()
+        ));
+    }
+    let (mut mismatches, mut max_abs_diff, mut first_bad) = (0usize, 0.0f64, None);
+    for (i, (&(k, u, y), &(hu, hy, _))) in printed.samples.iter().zip(&host).enumerate() {
+        if k as usize != i {
+            fail(format!("sample line {i} carries index {k}"));
+            break;
+        }
+        let d = (f32::from_bits(u) as f64 - f32::from_bits(hu) as f64).abs();
+        max_abs_diff = if d.is_nan() { f64::INFINITY } else { max_abs_diff.max(d) };
+        if u != hu || y != hy {
+            mismatches += 1;
+            first_bad.get_or_insert((k, u, hu, y, hy));
+        }
+    }
+    if let Some((k, u, hu, y, hy)) = first_bad {
+        fail(format!(
+            "{mismatches} samples differ from the host; first at k = {k}: u {u:08x} vs {hu:08x}, y {y:08x} vs {hy:08x}"
+        ));
+    }
+    let n = printed.samples.len();
+    // Timing.
+    let insns_per_tick = match printed.clock {
+        Some((insns, ticks)) if ticks > 0 => insns as f64 / ticks as f64,
+        _ => {
+            fail("no clock calibration line".into());
+            f64::NAN
+        }
+    };
+    let (insns_per_sample, max_step_insns) = match printed.timing {
+        Some((tn, step, empty, max)) if tn > 0 => {
+            ((step as f64 - empty as f64) * insns_per_tick / tn as f64, max as f64 * insns_per_tick)
+        }
+        _ => {
+            fail("no timing line".into());
+            (f64::NAN, f64::NAN)
+        }
+    };
+    let stack = printed.stack.unwrap_or_else(|| {
+        fail("no stack line".into());
+        0
+    });
+    // Tracking on the (identical) host run, after the fade-in and a settling second.
+    let settle = 1500.min(host.len()).min(n);
+    let tail: Vec<f64> = host[settle..]
+        .iter()
+        .zip(&printed.samples[settle..])
+        .map(|(&(_, _, d), &(_, _, y))| f32::from_bits(y) as f64 - d as f64)
+        .collect();
+    let rmse_um = (tail.iter().map(|e| e * e).sum::<f64>() / tail.len().max(1) as f64).sqrt();
+    Some(CaseResult {
+        samples: n,
+        mismatches,
+        max_abs_diff,
+        insns_per_tick,
+        insns_per_sample,
+        max_step_insns,
+        stack,
+        rmse_um,
+    })
+}
+
+/// Builds, runs every case and checks; returns the figures and every failure found.
 pub fn run(samples: u32, json: bool) -> (Option<Summary>, Vec<String>) {
     let mut failures = Vec::new();
     if let Err(mut e) = tools::check(&[&tools::QEMU]) {
@@ -202,100 +354,32 @@ pub fn run(samples: u32, json: bool) -> (Option<Summary>, Vec<String>) {
             None
         }
     };
-    let frames = match frames(samples) {
-        Ok(f) => f,
-        Err(e) => return (None, vec![e]),
-    };
-    let path = tools::firmware_target_dir().join("selftest.frames");
-    if let Err(e) = std::fs::write(&path, &frames) {
-        return (None, vec![format!("{}: {e}", path.display())]);
+    if samples < 1000 {
+        failures.push(format!("--samples {samples}: at least 1000 are required"));
     }
-    let host = match host_run(&frames) {
-        Ok(h) => h,
-        Err(e) => return (None, vec![e]),
-    };
-    let path_str = path.to_string_lossy().into_owned();
-    if path_str.contains([' ', ',']) {
-        return (
-            None,
-            vec![format!("{path_str}: the frames path must not contain spaces or commas (QEMU arguments)")],
-        );
-    }
-    eprintln!("running the self-test in QEMU ({samples} samples)");
-    let cmd = tools::qemu_command(&elf, &["selftest", &path_str], "null");
-    let Finished { status, stdout, stderr } = match tools::run_with_limit(cmd, Duration::from_secs(300)) {
-        Ok(f) => f,
-        Err(e) => return (None, vec![e]),
-    };
-    match status {
-        None => failures.push("QEMU did not finish within 300 s".into()),
-        Some(s) if !s.success() => failures.push(format!("the firmware exited with {s}")),
-        _ => {}
-    }
-    if !stderr.trim().is_empty() {
-        eprintln!("qemu stderr: {}", stderr.trim());
-    }
-    let printed = parse(&stdout);
-    failures.extend(printed.errors.iter().cloned());
-    if !printed.done {
-        failures.push("the firmware did not finish the self-test (no 'done' line)".into());
-    }
-    // Bit-for-bit comparison.
-    if printed.samples.len() != host.len() {
-        failures.push(format!(
-            "the firmware printed {} samples, the host computed {}",
-            printed.samples.len(),
-            host.len()
+    let out = |s: String| if json { eprintln!("{s}") } else { println!("{s}") };
+    let mut results = Vec::new();
+    for (i, case) in CASES.iter().enumerate() {
+        let Some(r) = run_case(&elf, case, i, samples, &mut failures) else { continue };
+        out(format!("{}:", case.name));
+        out(format!(
+            "  {} samples, {} differ from the host (max |Δu| = {:e} V); tracking RMSE after 1.5 s {:.4} µm of 20 µm",
+            r.samples, r.mismatches, r.max_abs_diff, r.rmse_um
         ));
-    }
-    let (mut mismatches, mut max_abs_diff, mut first_bad) = (0usize, 0.0f64, None);
-    for (i, (&(k, u, y), &(hu, hy, _))) in printed.samples.iter().zip(&host).enumerate() {
-        if k as usize != i {
-            failures.push(format!("sample line {i} carries index {k}"));
-            break;
-        }
-        let d = (f32::from_bits(u) as f64 - f32::from_bits(hu) as f64).abs();
-        max_abs_diff = if d.is_nan() { f64::INFINITY } else { max_abs_diff.max(d) };
-        if u != hu || y != hy {
-            mismatches += 1;
-            first_bad.get_or_insert((k, u, hu, y, hy));
-        }
-    }
-    if let Some((k, u, hu, y, hy)) = first_bad {
-        failures.push(format!(
-            "{mismatches} samples differ from the host; first at k = {k}: u {u:08x} vs {hu:08x}, y {y:08x} vs {hy:08x}"
+        out(format!(
+            "  control step (reference, u_f, harmonic RLS): {:.1} instructions mean, {:.0} ± {:.0} largest; \
+             clock {:.3} instructions per 25 MHz tick; peak stack {} B",
+            r.insns_per_sample, r.max_step_insns, r.insns_per_tick, r.insns_per_tick, r.stack
         ));
-    }
-    let n = printed.samples.len();
-    if n < 1000 {
-        failures.push(format!("only {n} samples compared (at least 1000 are required)"));
-    }
-    // Timing.
-    let insns_per_tick = match printed.clock {
-        Some((insns, ticks)) if ticks > 0 => insns as f64 / ticks as f64,
-        _ => {
-            failures.push("no clock calibration line".into());
-            f64::NAN
+        if r.insns_per_sample.is_nan() || r.insns_per_sample > STEP_BUDGET_INSNS {
+            failures.push(format!(
+                "{}: control step takes {:.0} instructions (budget {STEP_BUDGET_INSNS})",
+                case.name, r.insns_per_sample
+            ));
         }
-    };
-    let (insns_per_sample, max_step_insns) = match printed.timing {
-        Some((tn, step, empty, max)) if tn > 0 => {
-            ((step as f64 - empty as f64) * insns_per_tick / tn as f64, max as f64 * insns_per_tick)
-        }
-        _ => {
-            failures.push("no timing line".into());
-            (f64::NAN, f64::NAN)
-        }
-    };
-    if insns_per_sample.is_nan() || insns_per_sample > STEP_BUDGET_INSNS {
-        failures.push(format!(
-            "control step takes {insns_per_sample:.0} instructions (budget {STEP_BUDGET_INSNS})"
-        ));
+        results.push(r);
     }
-    let stack = printed.stack.unwrap_or_else(|| {
-        failures.push("no stack line".into());
-        0
-    });
+    let stack = results.iter().map(|r| r.stack).max().unwrap_or(0);
     let (flash_bytes, static_ram) = usage.as_ref().map_or((0, 0), |u| (u.flash_bytes, u.static_ram_bytes));
     let ram_bytes = static_ram + stack;
     if flash_bytes > FLASH_BUDGET {
@@ -304,26 +388,6 @@ pub fn run(samples: u32, json: bool) -> (Option<Summary>, Vec<String>) {
     if ram_bytes > RAM_BUDGET {
         failures.push(format!("RAM {ram_bytes} B exceeds {RAM_BUDGET} B"));
     }
-    // Tracking on the (identical) host run, after the fade-in and a settling second.
-    let settle = 1500.min(host.len());
-    let tail: Vec<f64> = host[settle..]
-        .iter()
-        .zip(&printed.samples[settle.min(printed.samples.len())..])
-        .map(|(&(_, _, d), &(_, _, y))| f32::from_bits(y) as f64 - d as f64)
-        .collect();
-    let rmse = (tail.iter().map(|e| e * e).sum::<f64>() / tail.len().max(1) as f64).sqrt();
-
-    let out = |s: String| if json { eprintln!("{s}") } else { println!("{s}") };
-    out(format!("self-test: {n} samples, {mismatches} differ from the host (max |Δu| = {max_abs_diff:e} V)"));
-    out(format!(
-        "clock: {:.3} instructions per tick of the 25 MHz timer (measured by a {}-instruction spin loop)",
-        insns_per_tick,
-        printed.clock.map_or(0, |c| c.0)
-    ));
-    out(format!(
-        "control step (reference, u_f, harmonic RLS): {insns_per_sample:.1} instructions mean, \
-         {max_step_insns:.0} ± {insns_per_tick:.0} largest (budget {STEP_BUDGET_INSNS})"
-    ));
     if let Some(u) = &usage {
         let list: Vec<String> = u.sections.iter().map(|s| format!("{} {}", s.name, s.size)).collect();
         out(format!("sections: {}", list.join(", ")));
@@ -331,8 +395,16 @@ pub fn run(samples: u32, json: bool) -> (Option<Summary>, Vec<String>) {
     out(format!(
         "flash: {flash_bytes} B of {FLASH_BUDGET}; RAM: {ram_bytes} B of {RAM_BUDGET} ({static_ram} static + {stack} peak stack)"
     ));
-    out(format!("tracking RMSE after {settle} samples: {rmse:.4} µm (20 µm reference)"));
-    let summary = Summary { samples: n, max_abs_diff, insns_per_sample, flash_bytes, ram_bytes };
+    if results.is_empty() {
+        return (None, failures);
+    }
+    let summary = Summary {
+        samples: results.iter().map(|r| r.samples).sum(),
+        max_abs_diff: results.iter().map(|r| r.max_abs_diff).fold(0.0, f64::max),
+        insns_per_sample: results.iter().map(|r| r.insns_per_sample).fold(f64::NEG_INFINITY, f64::max),
+        flash_bytes,
+        ram_bytes,
+    };
     (Some(summary), failures)
 }
 
