@@ -557,8 +557,6 @@ impl HilReport {
 mod tests {
     use super::*;
     use crate::transport::{MemoryPort, SerialPort};
-    use crate::wire::Decoder;
-    use crate::wire::device::{Device, TimerRequest};
     use crate::wire::message::MAX_AR;
     use boucwen_core::compensator::{HarmonicSpec, PhaseRule, Saturation, harmonic_response};
     use boucwen_core::model::{
@@ -567,8 +565,7 @@ mod tests {
     use boucwen_core::rls::RlsConfig;
     use boucwen_core::signal::Oscillator;
     use nalgebra::Complex;
-    use std::sync::Arc;
-    use std::sync::atomic::{AtomicBool, Ordering};
+    use std::sync::atomic::Ordering;
 
     const TS: f64 = 1e-3;
 
@@ -638,61 +635,8 @@ mod tests {
         }
     }
 
-    /// A board in a thread: the firmware's `Device` on `port`. It ticks as soon as the
-    /// measurement of its last command is in, or `patience` after the last tick (so the
-    /// test runs at the host's pace and a lost measurement costs only `patience`).
-    fn board<P: Port + Send + 'static>(
-        mut port: P,
-        patience: Duration,
-    ) -> (Arc<AtomicBool>, std::thread::JoinHandle<()>) {
-        let stop = Arc::new(AtomicBool::new(false));
-        let stop2 = stop.clone();
-        let h = std::thread::spawn(move || {
-            let mut dev = Device::new();
-            let mut dec = Decoder::new();
-            let mut ticking = false;
-            let mut last_tick = Instant::now();
-            let mut buf = [0u8; 256];
-            while !stop2.load(Ordering::Relaxed) {
-                let n = match port.read_timeout(&mut buf, Duration::from_micros(200)) {
-                    Ok(n) => n,
-                    Err(_) => return,
-                };
-                let mut out = Vec::new();
-                let mut send = |b: &[u8]| out.extend_from_slice(b);
-                for &b in &buf[..n] {
-                    if let Some(p) = dec.push(b) {
-                        let measured = matches!(&p, Ok(pk) if matches!(pk.msg, Message::Measurement { .. }));
-                        match dev.on_packet(p, &mut send) {
-                            TimerRequest::Start { .. } => {
-                                ticking = true;
-                                last_tick = Instant::now() - patience;
-                            }
-                            TimerRequest::Stop => ticking = false,
-                            TimerRequest::Keep => {}
-                        }
-                        if measured {
-                            // Time to tick: force it below.
-                            last_tick = Instant::now() - patience;
-                        }
-                    }
-                }
-                if ticking && last_tick.elapsed() >= patience {
-                    last_tick = Instant::now();
-                    if dev.on_tick(0, &mut send) == TimerRequest::Stop {
-                        ticking = false;
-                    }
-                }
-                if !out.is_empty() && port.write_all(&out).is_err() {
-                    return;
-                }
-            }
-        });
-        (stop, h)
-    }
-
     fn run_over<P: Port>(port: P, board_port: impl Port + Send + 'static, opts: HilOptions) -> HilReport {
-        let (stop, h) = board(board_port, Duration::from_millis(3));
+        let (stop, h) = crate::transport::test_board::spawn(board_port, Duration::from_millis(3));
         let mut link = Link::new(port);
         let mut plant = ModelPlant::new();
         let r = run(&mut link, &mut plant, &params(), &opts).unwrap();

@@ -11,8 +11,13 @@
 //!   outgoing frames, decodes incoming ones, counts intact, rejected and missing frames
 //!   ([`LinkStats`]), and passes both directions through an optional fault injector (bytes
 //!   sent are damaged before they are written, bytes received before they are decoded).
+//! * [`BoardPlant`]: the board as a [`Plant`] the host drives sample by sample (the board's
+//!   plant mode: `Command{k, u}` answered by `Measurement{k, y}`), with retries that the
+//!   board answers idempotently.
 
+use crate::plant::{Plant, PlantError};
 use crate::wire::frame::{SeqGap, SeqTracker};
+use crate::wire::message::{Mode, PlantParams, kind};
 use crate::wire::{self, Decoder, Message, Packet, WireError};
 use std::collections::VecDeque;
 use std::fmt;
@@ -417,5 +422,289 @@ impl<P: Port> Link<P> {
             }
         }
         Ok(None)
+    }
+}
+
+/// The driver board as a [`Plant`]: each [`Plant::step`] sends `Command{k, u[k]}` and waits
+/// for `Measurement{k, y[k]}` (the board's plant mode). On QEMU's `mps2-an386` the board's
+/// on-chip model ([`crate::wire::device::OnChipPlant`], configured by [`PlantParams`])
+/// stands for its DAC, actuator and sensor.
+///
+/// A step whose answer does not come within the timeout is sent again, up to the number of
+/// attempts (at once when a damaged frame or the board's negative acknowledge shows the
+/// exchange failed); the board answers a repeated command with the measurement it already
+/// took, so a retry never steps the plant twice. A step that gets no answer at all is
+/// [`PlantError::Device`]; the next step then sends the next sample and the board holds
+/// the last input over the sample it missed.
+pub struct BoardPlant<P: Port> {
+    link: Link<P>,
+    params: PlantParams,
+    ts_s: f64,
+    k: u32,
+    timeout: Duration,
+    attempts: u32,
+    name: String,
+}
+
+fn device_error(plant: &str, e: impl std::error::Error + Send + Sync + 'static) -> PlantError {
+    PlantError::Device { plant: plant.to_owned(), error: Box::new(e) }
+}
+
+#[derive(Debug)]
+struct Refusal(String);
+
+impl fmt::Display for Refusal {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(&self.0)
+    }
+}
+
+impl std::error::Error for Refusal {}
+
+impl<P: Port> BoardPlant<P> {
+    /// Configures the board's plant and starts an open-ended plant run; `ts_s` is the
+    /// sample interval the plant stands for. Each answer is awaited `timeout`, `attempts`
+    /// times.
+    pub fn start(
+        link: Link<P>,
+        params: PlantParams,
+        ts_s: f64,
+        timeout: Duration,
+        attempts: u32,
+    ) -> Result<Self, PlantError> {
+        let name = link.port_name();
+        let mut p = Self { link, params, ts_s, k: 0, timeout, attempts: attempts.max(1), name };
+        p.begin()?;
+        Ok(p)
+    }
+
+    fn begin(&mut self) -> Result<(), PlantError> {
+        let name = self.name.clone();
+        let (timeout, attempts) = (self.timeout, self.attempts);
+        let link = &mut self.link;
+        link.flush_peer().map_err(|e| device_error(&name, e))?;
+        link.discard_input();
+        link.request(&Message::Stop, attempts, timeout, |_, m| matches!(m, Message::Status(_)).then_some(()))
+            .map_err(|e| device_error(&name, e))?
+            .ok_or_else(|| device_error(&name, Refusal("no answer to Stop".into())))?;
+        for (msg, want) in [
+            (Message::SetPlant(self.params.clone()), kind::SET_PLANT),
+            (Message::Start { mode: Mode::Plant, samples: 0 }, kind::START),
+        ] {
+            let answer = link
+                .request(&msg, attempts, timeout, |seq, m| match m {
+                    Message::Ack { kind, seq: s } if *kind == want && *s == seq => Some(Ok(())),
+                    Message::Fault(f) if f.seq == seq => Some(Err(f.text.to_string())),
+                    _ => None,
+                })
+                .map_err(|e| device_error(&name, e))?;
+            match answer {
+                Some(Ok(())) => {}
+                Some(Err(text)) => {
+                    return Err(device_error(&name, Refusal(format!("the board refused: {text}"))));
+                }
+                None => {
+                    return Err(device_error(&name, Refusal(format!("no answer to message 0x{want:02x}"))));
+                }
+            }
+        }
+        self.k = 0;
+        Ok(())
+    }
+
+    /// The link (for its counters).
+    pub fn link(&self) -> &Link<P> {
+        &self.link
+    }
+}
+
+impl<P: Port> Plant for BoardPlant<P> {
+    fn step(&mut self, u_v: f64) -> Result<f64, PlantError> {
+        let k = self.k;
+        if !u_v.is_finite() {
+            return Err(PlantError::NonFiniteInput { plant: self.name.clone(), sample: k as usize });
+        }
+        let u = u_v as f32;
+        let msg = Message::Command { k, u, used: 0, flags: 0 };
+        for _ in 0..self.attempts {
+            self.link.send(&msg).map_err(|e| device_error(&self.name, e))?;
+            let deadline = Instant::now() + self.timeout;
+            // A damaged frame or the board's negative acknowledge means the exchange failed:
+            // try again at once rather than waiting out the timeout.
+            while let Some(r) = self.link.recv(deadline).map_err(|e| device_error(&self.name, e))? {
+                match r.map(|p| p.msg) {
+                    Ok(Message::Measurement { k: kk, y }) if kk == k => {
+                        self.k = self.k.wrapping_add(1);
+                        return Ok(y as f64);
+                    }
+                    Ok(Message::Fault(f)) if f.code == crate::wire::message::FaultCode::BadFrame => break,
+                    Err(_) => break,
+                    Ok(_) => {}
+                }
+            }
+        }
+        self.k = self.k.wrapping_add(1);
+        Err(device_error(
+            &self.name,
+            Refusal(format!("sample {k}: no measurement after {} attempts", self.attempts)),
+        ))
+    }
+
+    fn sample_interval(&self) -> f64 {
+        self.ts_s
+    }
+
+    fn reset(&mut self) -> Result<(), PlantError> {
+        self.begin()
+    }
+
+    fn name(&self) -> &str {
+        &self.name
+    }
+}
+
+/// A board in a thread for the tests: the firmware's protocol code on a port.
+#[cfg(test)]
+pub(crate) mod test_board {
+    use super::Port;
+    use crate::wire::Decoder;
+    use crate::wire::Message;
+    use crate::wire::device::{Device, TimerRequest};
+    use std::sync::Arc;
+    use std::sync::atomic::{AtomicBool, Ordering};
+    use std::time::{Duration, Instant};
+
+    /// A board in a thread: the firmware's `Device` on `port`. It ticks as soon as the
+    /// measurement of its last command is in, or `patience` after the last tick (so the
+    /// test runs at the host's pace and a lost measurement costs only `patience`).
+    pub(crate) fn spawn<P: Port + Send + 'static>(
+        mut port: P,
+        patience: Duration,
+    ) -> (Arc<AtomicBool>, std::thread::JoinHandle<()>) {
+        let stop = Arc::new(AtomicBool::new(false));
+        let stop2 = stop.clone();
+        let h = std::thread::spawn(move || {
+            let mut dev = Device::new();
+            let mut dec = Decoder::new();
+            let mut ticking = false;
+            let mut last_tick = Instant::now();
+            let mut buf = [0u8; 256];
+            while !stop2.load(Ordering::Relaxed) {
+                let n = match port.read_timeout(&mut buf, Duration::from_micros(200)) {
+                    Ok(n) => n,
+                    Err(_) => return,
+                };
+                let mut out = Vec::new();
+                let mut send = |b: &[u8]| out.extend_from_slice(b);
+                for &b in &buf[..n] {
+                    if let Some(p) = dec.push(b) {
+                        let measured = matches!(&p, Ok(pk) if matches!(pk.msg, Message::Measurement { .. }));
+                        match dev.on_packet(p, &mut send) {
+                            TimerRequest::Start { .. } => {
+                                ticking = true;
+                                last_tick = Instant::now() - patience;
+                            }
+                            TimerRequest::Stop => ticking = false,
+                            TimerRequest::Keep => {}
+                        }
+                        if measured {
+                            // Time to tick: force it below.
+                            last_tick = Instant::now() - patience;
+                        }
+                    }
+                }
+                if ticking && last_tick.elapsed() >= patience {
+                    last_tick = Instant::now();
+                    if dev.on_tick(0, &mut send) == TimerRequest::Stop {
+                        ticking = false;
+                    }
+                }
+                if !out.is_empty() && port.write_all(&out).is_err() {
+                    return;
+                }
+            }
+        });
+        (stop, h)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::wire::device::OnChipPlant;
+    use boucwen_core::model::{BoucWenParams, ExtendedParams, HarmonicBranch};
+    use boucwen_core::signal::Oscillator;
+    use std::sync::atomic::Ordering;
+
+    fn plant_params() -> PlantParams {
+        PlantParams {
+            base: ExtendedParams {
+                bw: BoucWenParams { a1: 20.0, a: 6.0, a0: 0.5, gamma: 2.0, beta: 3.0 },
+                ar: [1.6, -0.7, 0.0],
+            },
+            drive: Oscillator::new(23.0, 1e-3).unwrap(),
+            branches: [HarmonicBranch { order: 3, alpha_s: 0.1, alpha_c: -0.05, ar: [] }]
+                .into_iter()
+                .collect(),
+        }
+    }
+
+    #[test]
+    fn fault_injector_rate_and_repeatability() {
+        let data = vec![0x55u8; 200_000];
+        let (mut a, mut b) = (FaultInjector::new(0.01, 3), FaultInjector::new(0.01, 3));
+        let (mut out_a, mut out_b) = (Vec::new(), Vec::new());
+        a.apply(&data, &mut out_a);
+        b.apply(&data, &mut out_b);
+        assert_eq!(out_a, out_b, "same seed, same damage");
+        let c = a.counts();
+        let hit = (c.dropped + c.corrupted) as f64 / c.bytes as f64;
+        assert!((hit - 0.01).abs() < 0.001, "hit rate {hit}");
+        assert_eq!(out_a.len() as u64, c.bytes - c.dropped);
+        assert_eq!(out_a.iter().filter(|&&x| x != 0x55).count() as u64, c.corrupted);
+        let mut none = FaultInjector::new(f64::NAN, 1);
+        let mut out = Vec::new();
+        none.apply(&data[..100], &mut out);
+        assert_eq!(out, data[..100]);
+    }
+
+    #[test]
+    fn board_plant_matches_the_on_chip_model_even_over_a_damaged_link() {
+        for rate in [0.0, 0.02] {
+            let (host, dev) = MemoryPort::pair();
+            let (stop, h) = test_board::spawn(dev, Duration::from_millis(3));
+            let mut link = Link::new(host);
+            link.inject_faults(Some(rate), 11);
+            let mut plant =
+                BoardPlant::start(link, plant_params(), 1e-3, Duration::from_millis(30), 20).unwrap();
+            let mut reference = OnChipPlant::new(&plant_params()).unwrap();
+            for k in 0..1000 {
+                let u = 0.3 * (k as f64 * 0.05).sin();
+                let y = plant.step(u).unwrap();
+                // Retries never step the board's plant twice: bit-exact with the model.
+                assert_eq!(y, reference.step(u as f32) as f64, "rate {rate}, sample {k}");
+            }
+            if rate > 0.0 {
+                let s = plant.link().stats();
+                assert!(s.rx_bad > 0, "{s:?}");
+            }
+            // Reset restarts the plant at rest.
+            plant.reset().unwrap();
+            let mut fresh = OnChipPlant::new(&plant_params()).unwrap();
+            assert_eq!(plant.step(0.1).unwrap(), fresh.step(0.1) as f64);
+            assert!(plant.step(f64::NAN).is_err());
+            stop.store(true, Ordering::Relaxed);
+            drop(plant);
+            h.join().unwrap();
+        }
+    }
+
+    #[test]
+    fn a_silent_board_plant_is_a_device_error() {
+        let (host, _dev) = MemoryPort::pair();
+        let e = BoardPlant::start(Link::new(host), plant_params(), 1e-3, Duration::from_millis(5), 2)
+            .err()
+            .unwrap();
+        assert_eq!(e.to_string(), "memory port A: no answer to Stop");
     }
 }

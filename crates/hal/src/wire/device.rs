@@ -19,7 +19,7 @@
 //! | `Start{mode, n}` | `Ack`, run starts (`Fault(NotConfigured)` without parameters) | `Fault(Busy)` | `Fault(Busy)` |
 //! | `Stop` | `Status` | run ends, `Status` | run ends, `Status` |
 //! | `Measurement{k}` | counted stale | kept for the next tick if `k` is the last command's sample, else counted stale | `Fault(Unexpected)` |
-//! | `Command{k, u}` | `Fault(Unexpected)` | `Fault(Unexpected)` | plant steps (holding the last `u` over missed samples), `Measurement{k, y}` |
+//! | `Command{k, u}` | `Fault(Unexpected)` | `Fault(Unexpected)` | plant steps (holding the last `u` over missed samples), `Measurement{k, y}`; the same command again: the same answer again |
 //! | a bad frame | `Fault(BadFrame)` | `Fault(BadFrame)` | `Fault(BadFrame)` |
 //!
 //! At each tick of a control run the board takes the measurement of the previous sample if
@@ -255,6 +255,8 @@ struct PlantRun {
     total: u32,
     next_k: u32,
     u_last: f32,
+    /// The last measurement sent, for a repeated command.
+    y_last: f32,
 }
 
 // The firmware has no heap; the board holds one run at a time, so the size is fixed anyway.
@@ -429,9 +431,10 @@ impl Device {
             Mode::Plant => match &self.plant {
                 None => Err("no plant parameters (send SetPlant first)"),
                 Some(p) => match OnChipPlant::new(p) {
-                    Ok(plant) => {
-                        Ok((Run::Plant(PlantRun { plant, total: samples, next_k: 0, u_last: 0.0 }), None))
-                    }
+                    Ok(plant) => Ok((
+                        Run::Plant(PlantRun { plant, total: samples, next_k: 0, u_last: 0.0, y_last: 0.0 }),
+                        None,
+                    )),
                     Err(_) => Err("plant parameters rejected"),
                 },
             },
@@ -462,6 +465,12 @@ impl Device {
             self.fault(send, FaultCode::Unexpected, seq, "command outside a plant run");
             return TimerRequest::Keep;
         };
+        if run.next_k > 0 && k == run.next_k - 1 && u.to_bits() == run.u_last.to_bits() {
+            // The host repeats a command whose answer it did not get: answer again.
+            let y = run.y_last;
+            self.send(send, &Message::Measurement { k, y });
+            return TimerRequest::Keep;
+        }
         if k < run.next_k || (run.total > 0 && k >= run.total) || !u.is_finite() {
             self.status.measurements_stale = self.status.measurements_stale.wrapping_add(1);
             return TimerRequest::Keep;
@@ -473,6 +482,7 @@ impl Device {
         }
         let y = run.plant.step(u);
         run.u_last = u;
+        run.y_last = y;
         run.next_k = k + 1;
         let done = run.total > 0 && run.next_k >= run.total;
         self.status.samples_done = run.next_k;
