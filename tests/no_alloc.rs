@@ -1,7 +1,7 @@
 //! Nothing that runs per sample allocates: every operation timed in `benches/latency.rs`
-//! (model steps, RLS updates, compensator steps), and the online identifier, in `f32` and
-//! `f64`, is run for many samples while a global allocator counts the allocations made by
-//! the running thread.
+//! (model steps, RLS updates, compensator steps, the peer controllers' steps), the open
+//! loop and the online identifier, in `f32` and `f64`, is run for many samples while a
+//! global allocator counts the allocations made by the running thread.
 //!
 //! The counter is per thread, so the harness running other tests (or printing) on other
 //! threads at the same time cannot pollute it.
@@ -12,6 +12,9 @@ use std::cell::Cell;
 use boucwen_core::Real;
 use boucwen_core::compensator::{
     Compensator, CompensatorConfig, HarmonicSpec, PhaseRule, Saturation, harmonic_response,
+};
+use boucwen_core::controllers::{
+    Controller, ORC_CAPACITY, OpenLoop, OrcController, PiController, TuneOptions, tune,
 };
 use boucwen_core::ident::{IdentConfig, Identifier};
 use boucwen_core::model::{BoucWenParams, Classic, EnhancedParams, ExtendedParams, HarmonicBranch, Model};
@@ -180,6 +183,24 @@ fn count_compensator<T: Real>() -> (u64, T) {
     (n, comp.weights(0).unwrap().0)
 }
 
+/// A controller on the same closed loop as the compensator; returns the count and the
+/// last input applied.
+fn count_controller<T: Real, C: Controller<T>>(mut ctrl: C) -> (u64, T) {
+    let plant = enhanced3::<T>();
+    let mut state = plant.initial_state();
+    let mut reference = Sine::new(T::lit(20.0), drive());
+    let mut u = ctrl.step(reference.next_sample(), None).unwrap().u;
+    let mut y = plant.step(&mut state, u);
+    let n = allocations_in(|| {
+        for k in 0..SAMPLES {
+            let measured = if k % 100 == 99 { None } else { Some(y) };
+            u = ctrl.step(reference.next_sample(), measured).unwrap().u;
+            y = plant.step(&mut state, u);
+        }
+    });
+    (n, u)
+}
+
 fn count_identifier<T: Real>() -> (u64, u32) {
     let truth = enhanced3::<T>();
     let mut id = Identifier::<T, 2, 2, 1, 11>::new(
@@ -216,6 +237,25 @@ fn check_precision<T: Real>(name: &str) {
     let (n, weight) = count_compensator::<T>();
     assert_eq!(n, 0, "{name} compensator: {n} allocations in {SAMPLES} steps");
     assert!(weight.is_finite() && weight != T::zero(), "{name} compensator did not adapt");
+    let tuning = tune(
+        &extended::<T>(),
+        drive(),
+        T::lit(TS),
+        Saturation::symmetric(T::lit(10.0)),
+        &TuneOptions::default(),
+    )
+    .unwrap();
+    for (what, (n, u)) in [
+        ("open loop", count_controller(OpenLoop::new(tuning.open_loop).unwrap())),
+        ("PI", count_controller(PiController::new(tuning.pi.pi).unwrap())),
+        (
+            "ORC",
+            count_controller(OrcController::<T, ORC_CAPACITY>::new(tuning.pi.pi, tuning.orc.orc).unwrap()),
+        ),
+    ] {
+        assert_eq!(n, 0, "{name} {what} controller: {n} allocations in {SAMPLES} steps");
+        assert!(u.is_finite(), "{name} {what} controller: u = {u}");
+    }
     let (n, updates) = count_identifier::<T>();
     assert_eq!(n, 0, "{name} identifier: {n} allocations in {SAMPLES} updates");
     assert_eq!(updates as usize, SAMPLES + 1, "{name} identifier: updates rejected");

@@ -10,7 +10,8 @@ use boucwen_core::compensator::{
     Compensator, CompensatorConfig, HarmonicSpec, PhaseRule, Saturation, harmonic_response,
 };
 use boucwen_core::rls::RlsConfig;
-use boucwen_core::signal::{Oscillator, Sine};
+use boucwen_core::signal::{Oscillator, Sine, sin_cos};
+use nalgebra::Complex;
 
 /// The identification drive of eq. (13), `u[k] = amplitude·sin(2π f k Ts)`, `n` samples.
 pub fn sine(amplitude: f64, freq_hz: f64, ts: f64, n: usize) -> Result<Vec<f64>, boucwen_core::Error> {
@@ -111,9 +112,74 @@ impl Default for CompensationSettings {
 /// Length of the reference's fade-in (s).
 pub const FADE_IN_S: f64 = 0.5;
 
+/// The plant's response at each harmonic from the model: its frequency response at `n·f`
+/// with the input delay (`e^{-i 2π n f τ Ts}`) under [`PhaseRule::Model`], the paper's table
+/// under [`PhaseRule::Table`].
+pub fn model_harmonics(
+    model: &HostModel,
+    orders: &[u32],
+    freq_hz: f64,
+    ts: f64,
+    rule: PhaseRule<f64>,
+) -> Vec<HarmonicSpec<f64>> {
+    orders
+        .iter()
+        .map(|&n| {
+            let g = harmonic_response(&model.ext, n, freq_hz, ts, rule);
+            let response = match rule {
+                PhaseRule::Model => {
+                    let w = -std::f64::consts::TAU * n as f64 * freq_hz * ts * model.delay;
+                    g * Complex::new(w.cos(), w.sin())
+                }
+                PhaseRule::Table { .. } => g,
+            };
+            HarmonicSpec { order: n, response }
+        })
+        .collect()
+}
+
+/// Measures the actuator's incremental response at `n·f` at its operating point: `y_probe`
+/// is the response to `u_drive + eps·sin(2π n f k Ts)`, `y_drive` the response to
+/// `u_drive` alone over the same samples; the `n·f` component of the difference over the
+/// last half, divided by the probe's, is the response. Near a superharmonic resonance it
+/// can differ by tens of degrees from a small-signal model's (the stiffened beam, driven
+/// hard at `f`, answers a small input at `n·f` differently than at rest).
+pub fn probe_response(
+    y_drive: &[f64],
+    y_probe: &[f64],
+    freq_hz: f64,
+    order: u32,
+    eps: f64,
+    ts: f64,
+) -> Result<Complex<f64>, boucwen_core::Error> {
+    let n = y_drive.len().min(y_probe.len());
+    let fh = order as f64 * freq_hz;
+    let probe = sine(eps, fh, ts, n)?;
+    let from = n / 2;
+    let diff: Vec<f64> = y_probe[from..n].iter().zip(&y_drive[from..n]).map(|(a, b)| a - b).collect();
+    let t = analysis::tone(&diff, fh, ts);
+    let p = analysis::tone(&probe[from..], fh, ts);
+    if !(p.amp > 0.0 && t.amp.is_finite()) {
+        return Err(boucwen_core::Error::OutOfRange("probe (no response measured)"));
+    }
+    Ok(Complex::from_polar(t.amp / p.amp, t.phase - p.phase))
+}
+
+/// The probe input: `u_drive + eps·sin(2π n f k Ts)`.
+pub fn with_probe(
+    u_drive: &[f64],
+    freq_hz: f64,
+    order: u32,
+    eps: f64,
+    ts: f64,
+) -> Result<Vec<f64>, boucwen_core::Error> {
+    let probe = sine(eps, order as f64 * freq_hz, ts, u_drive.len())?;
+    Ok(u_drive.iter().zip(&probe).map(|(a, b)| a + b).collect())
+}
+
 /// Tracks `d[k] = α sin(2π f k Ts)` for `n` samples with the compensator built from
-/// `model`, cancelling the harmonics `orders` (empty: `u_f` alone, eqs. 16/17; otherwise the
-/// proposed law, eqs. 20/21).
+/// `model`, cancelling the harmonics `harmonics` (empty: `u_f` alone, eqs. 16/17; otherwise
+/// the proposed law, eqs. 20/21), each with the plant's response at its frequency.
 ///
 /// The reference is faded in over the first [`FADE_IN_S`] (a raised-cosine envelope on `α`).
 /// The direct inverse is exact: started from rest on a full-amplitude sine it demands that
@@ -124,7 +190,7 @@ pub const FADE_IN_S: f64 = 0.5;
 pub fn track(
     plant: &mut dyn FnMut(f64) -> f64,
     model: &HostModel,
-    orders: &[u32],
+    harmonics: &[HarmonicSpec<f64>],
     alpha: f64,
     freq_hz: f64,
     ts: f64,
@@ -134,7 +200,7 @@ pub fn track(
     fn run<const M: usize>(
         plant: &mut dyn FnMut(f64) -> f64,
         model: &HostModel,
-        orders: &[u32],
+        specs: &[HarmonicSpec<f64>],
         alpha: f64,
         freq_hz: f64,
         ts: f64,
@@ -142,10 +208,7 @@ pub fn track(
         set: &CompensationSettings,
     ) -> Result<Trace, boucwen_core::Error> {
         let drive = Oscillator::new(freq_hz, ts)?;
-        let harmonics: [HarmonicSpec<f64>; M] = core::array::from_fn(|m| HarmonicSpec {
-            order: orders[m],
-            response: harmonic_response(&model.ext, orders[m], freq_hz, ts, set.phase_rule),
-        });
+        let harmonics: [HarmonicSpec<f64>; M] = core::array::from_fn(|m| specs[m]);
         let mut comp = Compensator::new(CompensatorConfig {
             model: model.ext,
             drive,
@@ -154,18 +217,20 @@ pub fn track(
             saturation: set.saturation,
             uc_max: set.uc_max,
         })?;
-        let mut reference = Sine::new(1.0, drive);
+        let fade = (FADE_IN_S / ts).round().max(1.0);
+        let envelope = |k: f64| {
+            if k < fade { 0.5 - 0.5 * (std::f64::consts::PI * k.max(0.0) / fade).cos() } else { 1.0 }
+        };
+        // The reference, and for the model's input delay τ the reference τ samples ahead.
+        let w = std::f64::consts::TAU * freq_hz * ts;
         let mut t = Trace { d: Vec::with_capacity(n), u: Vec::with_capacity(n), y: Vec::with_capacity(n) };
         let mut y_prev = None;
-        let fade = (FADE_IN_S / ts).round().max(1.0);
         for k in 0..n {
-            let env = if (k as f64) < fade {
-                0.5 - 0.5 * (std::f64::consts::PI * k as f64 / fade).cos()
-            } else {
-                1.0
-            };
-            let d = alpha * env * reference.next_sample();
-            let out = comp.step(d, y_prev)?;
+            let kf = k as f64;
+            let (s_now, _) = sin_cos::<f64>(drive.phase_at(k as u64));
+            let d = alpha * envelope(kf) * s_now;
+            let d_ahead = alpha * envelope(kf + model.delay) * (w * (kf + model.delay)).sin();
+            let out = comp.step_previewed(d, d_ahead, y_prev)?;
             let y = plant(out.u);
             y_prev = Some(y);
             t.d.push(d);
@@ -174,10 +239,10 @@ pub fn track(
         }
         Ok(t)
     }
-    match orders.len() {
-        0 => run::<0>(plant, model, orders, alpha, freq_hz, ts, n, set),
-        1 => run::<1>(plant, model, orders, alpha, freq_hz, ts, n, set),
-        2 => run::<2>(plant, model, orders, alpha, freq_hz, ts, n, set),
+    match harmonics.len() {
+        0 => run::<0>(plant, model, harmonics, alpha, freq_hz, ts, n, set),
+        1 => run::<1>(plant, model, harmonics, alpha, freq_hz, ts, n, set),
+        2 => run::<2>(plant, model, harmonics, alpha, freq_hz, ts, n, set),
         _ => Err(boucwen_core::Error::OutOfRange("harmonic orders (at most 2 are cancelled at once)")),
     }
 }
@@ -207,6 +272,7 @@ mod tests {
             drive_hz: 23.0,
             branches: vec![Branch { order: 3, alpha_s: 0.1, alpha_c: 0.05, ar: [0.0, 0.0] }],
             drift: vec![],
+            delay: 0.0,
         };
         let controller_model = HostModel { branches: vec![], ..plant_model.clone() };
         let n = 15_000;
@@ -220,7 +286,8 @@ mod tests {
             let p = plant_model.enhanced_for_test();
             let mut s = boucwen_core::model::Model::initial_state(&p);
             let mut plant = |u: f64| boucwen_core::model::Model::step(&p, &mut s, u);
-            let t = track(&mut plant, &controller_model, orders, alpha, 23.0, 1e-3, n, &set).unwrap();
+            let h = model_harmonics(&controller_model, orders, 23.0, 1e-3, set.phase_rule);
+            let t = track(&mut plant, &controller_model, &h, alpha, 23.0, 1e-3, n, &set).unwrap();
             rmse.push(t.rmse_after(5000) / alpha);
         }
         assert!(rmse[0] > 0.05 && rmse[1] < 0.01, "{rmse:?}");

@@ -57,6 +57,23 @@ pub struct HostModel {
     pub branches: Vec<Branch>,
     /// Drift: coefficients of `1, t, t², …` (t in s from the record's start) added to the output.
     pub drift: Vec<f64>,
+    /// Input delay `τ` (samples, ≥ 0, fractional): the model is driven by `u` delayed by `τ`
+    /// (linear interpolation between samples). 0 is the paper's form; a sampled actuator
+    /// (zero-order hold, driver, transport) applies its input later than the paper's
+    /// instantaneous `A1·u[k]`, and `τ` says by how much. The compensator compensates it by
+    /// preview ([`boucwen_core::compensator::Compensator::step_previewed`]).
+    pub delay: f64,
+}
+
+/// `u` delayed by `delay` samples (linear interpolation, zero before the start).
+pub fn delayed(u: &[f64], delay: f64) -> Vec<f64> {
+    if delay <= 0.0 {
+        return u.to_vec();
+    }
+    let m = delay.floor() as usize;
+    let frac = delay - m as f64;
+    let at = |i: isize| if i < 0 { 0.0 } else { u.get(i as usize).copied().unwrap_or(0.0) };
+    (0..u.len() as isize).map(|k| (1.0 - frac) * at(k - m as isize) + frac * at(k - m as isize - 1)).collect()
 }
 
 /// Why a fit failed.
@@ -153,6 +170,8 @@ impl HostModel {
             let mut s = p.initial_state();
             Ok(u.iter().map(|&uk| p.step(&mut s, uk)).collect())
         }
+        let ud = delayed(u, self.delay);
+        let u = ud.as_slice();
         let mut y = match self.branches.len() {
             0 => run::<0>(self, u, ts)?,
             1 => run::<1>(self, u, ts)?,
@@ -245,7 +264,15 @@ pub fn fit_paper_rls(
         }
         more => return Err(FitError::TooManyBranches(more.len())),
     };
-    Ok(HostModel { ext, drive_hz: spec.drive_hz, branches, drift: vec![] })
+    Ok(HostModel { ext, drive_hz: spec.drive_hz, branches, drift: vec![], delay: 0.0 })
+}
+
+impl HostModel {
+    /// The loop shape `[A0/A, γ', β]` (`γ' = sgn(A)·γ`) of the output-error parametrisation.
+    pub fn shape(&self) -> Option<[f64; 3]> {
+        let a = self.ext.bw.a;
+        (a != 0.0).then(|| [self.ext.bw.a0 / a, a.signum() * self.ext.bw.gamma, self.ext.bw.beta])
+    }
 }
 
 /// Options of the output-error fit.
@@ -271,13 +298,49 @@ pub struct OeOptions {
     /// (moving its resonance far away), which helps that record's fit and ruins the model's
     /// inverse; a model meant for compensation keeps the measured structure.
     pub fix_structure: bool,
-    /// Accept only models whose loop is invertible: on both branches and for every `h` the
-    /// loop can reach, the slope of `A1·u - h` stays above [`MIN_SLOPE`]·`A1` > 0
-    /// ([`BoucWenParams::min_output_slope`]; a bimorph's deflection rises with voltage on
-    /// each branch). The direct inverse (eqs. 16/17) needs it, and it drives the model along
-    /// paths other than the fitted one; a free fit may reach a locally decreasing loop that
-    /// reproduces a record as well.
+    /// Accept only models whose loop is invertible: on both branches and over the operating
+    /// range of `h` (see [`operating_slope`]), the slope of `A1·u - h` stays above
+    /// [`MIN_SLOPE`]·`A1` > 0 (a bimorph's deflection rises with voltage on each branch). The
+    /// direct inverse (eqs. 16/17) needs it, and it drives the model along paths near but not
+    /// on the fitted one; a free fit may reach a locally decreasing loop that reproduces a
+    /// record as well.
     pub require_invertible: bool,
+    /// A known loop shape `[A0/A, γ, β]` (e.g. from a quasi-static record): with a fixed
+    /// structure too, nothing nonlinear is left and the fit is one linear least-squares
+    /// solve for the gains `A1`, `A`, the branch weights and the drift.
+    pub shape: Option<[f64; 3]>,
+    /// The input delay `τ` (samples) to use, or to start from when `fit_delay` (`None`: 0).
+    /// With `fix_structure` the delay counts as part of the structure and stays fixed.
+    pub delay: Option<f64>,
+    /// Fit the delay (from a small grid, then with the other outer parameters). A record at
+    /// one frequency cannot tell a delay from the structure's phase; a broadband one can.
+    pub fit_delay: bool,
+    /// Fit a linear model (no hysteresis: `A = 0`), e.g. to a small-amplitude broadband
+    /// record that characterises the structure and the delay.
+    pub linear: bool,
+}
+
+/// The smallest slope of `A1·u - h` over the operating range of `h`: the range `[lo, hi]` a
+/// record reached, widened by half its width on each side (room for the compensator's
+/// excursions) and capped at the loop's saturation range. `None` when `h` is unbounded.
+pub fn operating_slope(bw: &BoucWenParams<f64>, lo: f64, hi: f64) -> Option<f64> {
+    let (sat_lo, sat_hi) = bw.h_range()?;
+    let margin = 0.5 * (hi - lo);
+    Some(bw.min_output_slope_over((lo - margin).max(sat_lo), (hi + margin).min(sat_hi)))
+}
+
+/// Whether `model` is invertible on the operating range its hysteresis reaches for the
+/// input `u` (see [`operating_slope`]), with the margin [`MIN_SLOPE`].
+pub fn invertible_for(model: &HostModel, u: &[f64]) -> bool {
+    let bw = &model.ext.bw;
+    let mut s = boucwen_core::model::HysteresisState::default();
+    let (mut lo, mut hi) = (0.0f64, 0.0f64);
+    for &uk in &delayed(u, model.delay) {
+        let h = s.step(bw, uk);
+        lo = lo.min(h);
+        hi = hi.max(h);
+    }
+    bw.a1 > 0.0 && operating_slope(bw, lo, hi).is_some_and(|m| m >= MIN_SLOPE * bw.a1)
 }
 
 /// Smallest branch slope of `A1·u - h`, relative to `A1`, of an invertible model.
@@ -293,15 +356,23 @@ impl Default for OeOptions {
             structure: None,
             fix_structure: false,
             require_invertible: true,
+            shape: None,
+            delay: None,
+            fit_delay: false,
+            linear: false,
         }
     }
 }
 
-/// The outer parameters: AR (a1, a2) and the loop shape (A0/A, γ', β).
-type Phi = [f64; 5];
+/// The outer parameters: AR (a1, a2), the loop shape (A0/A, γ', β) and the input delay τ.
+type Phi = [f64; 6];
+
+/// Largest input delay the fit considers (samples).
+pub const MAX_DELAY: f64 = 3.0;
 
 struct Problem<'a> {
     require_invertible: bool,
+    linear: bool,
     u: &'a [f64],
     y: &'a [f64],
     ts: f64,
@@ -335,19 +406,23 @@ impl<'a> Problem<'a> {
                 (0..end).map(|k| sin_cos::<f64>(drive.phase_at(k as u64).wrapping_mul(n as u64))).collect()
             })
             .collect();
-        Ok(Self { require_invertible: false, u, y, ts, end, skip, spec, branch_sc })
+        Ok(Self { require_invertible: false, linear: false, u, y, ts, end, skip, spec, branch_sc })
     }
 
     fn columns(&self) -> usize {
-        2 + 2 * self.spec.harmonics.len() + self.spec.drift_degree.map_or(0, |d| d + 1)
+        2 - usize::from(self.linear)
+            + 2 * self.spec.harmonics.len()
+            + self.spec.drift_degree.map_or(0, |d| d + 1)
     }
 
     /// Projected solution for `φ`, or `None` if `φ` gives an unstable or degenerate model.
     fn solve(&self, phi: &Phi) -> Option<Solution> {
         let (a1, a2) = (phi[0], phi[1]);
-        if !ar_is_stable(&[a1, a2]) {
+        if !ar_is_stable(&[a1, a2]) || !(0.0..=MAX_DELAY).contains(&phi[5]) {
             return None;
         }
+        let (dm, dfrac) = (phi[5].floor() as usize, phi[5] - phi[5].floor());
+        let u_at = |i: usize| if i < self.u.len() { self.u[i] } else { 0.0 };
         let shape = BoucWenParams { a1: 0.0, a: 1.0, a0: phi[2], gamma: phi[3], beta: phi[4] };
         let ncol = self.columns();
         let n = self.end;
@@ -358,19 +433,26 @@ impl<'a> Problem<'a> {
         let mut xty = DVector::<f64>::zeros(ncol);
         let mut rows: Vec<f64> = Vec::with_capacity((n - self.skip) * ncol);
         let (mut h, mut u_prev) = (0.0, 0.0);
+        let (mut h_lo, mut h_hi) = (0.0f64, 0.0f64);
         let mut x = vec![0.0; ncol];
 
         for k in 0..n {
-            let uk = self.u[k];
+            // The delayed input (linear interpolation between samples).
+            let uk = (1.0 - dfrac) * if k >= dm { u_at(k - dm) } else { 0.0 }
+                + dfrac * if k > dm { u_at(k - dm - 1) } else { 0.0 };
             let mut c = 0;
             x[c] = uk;
             c += 1;
-            h = shape.h_next(h, uk - u_prev);
-            if !h.is_finite() || h.abs() > 1e12 {
-                return None;
+            if !self.linear {
+                h = shape.h_next(h, uk - u_prev);
+                if !h.is_finite() || h.abs() > 1e12 {
+                    return None;
+                }
+                h_lo = h_lo.min(h);
+                h_hi = h_hi.max(h);
+                x[c] = -h;
+                c += 1;
             }
-            x[c] = -h;
-            c += 1;
             for sc in &self.branch_sc {
                 x[c] = sc[k].0;
                 x[c + 1] = sc[k].1;
@@ -414,16 +496,31 @@ impl<'a> Problem<'a> {
         for i in 0..ncol {
             xtx[(i, i)] += 1e-12 * scale + 1e-300;
         }
-        let theta = xtx.cholesky()?.solve(&xty);
+        let mut theta = xtx.clone().cholesky()?.solve(&xty);
+        if !self.linear && theta[1] < 0.0 {
+            // The loop's amplitude A is physically ≥ 0: the constrained optimum then lies on
+            // A = 0 (one bound, so this is the exact non-negative least-squares solution).
+            let mut reduced = xtx.clone();
+            let mut rhs = xty.clone();
+            for j in 0..ncol {
+                reduced[(1, j)] = 0.0;
+                reduced[(j, 1)] = 0.0;
+            }
+            reduced[(1, 1)] = 1.0;
+            rhs[1] = 0.0;
+            theta = reduced.cholesky()?.solve(&rhs);
+        }
         if theta.iter().any(|t| !t.is_finite()) {
             return None;
         }
         if self.require_invertible {
             // Over the whole range h can reach, not only the fitted trajectory: the inverse
             // drives the model along other paths. A negative A is a non-physical loop.
-            let (a1, amp) = (theta[0], theta[1]);
+            let (a1, amp) = (theta[0], if self.linear { 0.0 } else { theta[1] });
             let bw = BoucWenParams { a1, a: amp, a0: phi[2] * amp, gamma: phi[3], beta: phi[4] };
-            let ok = a1 > 0.0 && amp >= 0.0 && bw.min_output_slope().is_some_and(|m| m >= MIN_SLOPE * a1);
+            let ok = a1 > 0.0
+                && amp >= 0.0
+                && operating_slope(&bw, amp * h_lo, amp * h_hi).is_some_and(|m| m >= MIN_SLOPE * a1);
             if !ok {
                 return None;
             }
@@ -440,7 +537,7 @@ impl<'a> Problem<'a> {
 
     fn model(&self, phi: &Phi, theta: &DVector<f64>) -> HostModel {
         let a1_gain = theta[0];
-        let (amp, mut c) = (theta[1], 2);
+        let (amp, mut c) = if self.linear { (0.0, 1) } else { (theta[1], 2) };
         let sgn = if amp < 0.0 { -1.0 } else { 1.0 };
         let ext = ExtendedParams {
             bw: BoucWenParams { a1: a1_gain, a: amp, a0: phi[2] * amp, gamma: sgn * phi[3], beta: phi[4] },
@@ -455,23 +552,18 @@ impl<'a> Problem<'a> {
             Some(d) => (0..=d).map(|i| theta[c + i]).collect(),
             None => vec![],
         };
-        HostModel { ext, drive_hz: self.spec.drive_hz, branches, drift }
+        HostModel { ext, drive_hz: self.spec.drive_hz, branches, drift, delay: phi[5] }
     }
 
-    /// Levenberg–Marquardt over the outer parameters from `first_free` on (2 keeps the AR part fixed).
-    fn levenberg_marquardt(
-        &self,
-        mut phi: Phi,
-        max_iter: usize,
-        first_free: usize,
-    ) -> Option<(Phi, Solution)> {
+    /// Levenberg–Marquardt over the outer parameters listed in `free`.
+    fn levenberg_marquardt(&self, mut phi: Phi, max_iter: usize, free: &[usize]) -> Option<(Phi, Solution)> {
         let mut sol = self.solve(&phi)?;
         let mut mu = 1e-3;
-        let nf = 5 - first_free;
+        let nf = free.len();
         for _ in 0..max_iter {
             let m = sol.residual.len();
             let mut jac = DMatrix::<f64>::zeros(m, nf);
-            for (col, p) in (first_free..5).enumerate() {
+            for (col, &p) in free.iter().enumerate() {
                 let step = 1e-7 * phi[p].abs().max(1e-2);
                 let mut q = phi;
                 q[p] += step;
@@ -503,8 +595,8 @@ impl<'a> Problem<'a> {
                 };
                 let delta = ch.solve(&(-&g));
                 let mut cand = phi;
-                for i in 0..nf {
-                    cand[first_free + i] += delta[i];
+                for (i, &p) in free.iter().enumerate() {
+                    cand[p] += delta[i];
                 }
                 match self.solve(&cand) {
                     Some(s) if s.cost < sol.cost => {
@@ -567,8 +659,11 @@ pub fn fit_oe(
         // Invertible first; if a fixed structure admits no invertible loop, let the
         // structure move (from the given one) before giving up invertibility.
         let mut tries = vec![opt.clone()];
+        if opt.shape.is_some() {
+            tries.push(OeOptions { shape: None, ..opt.clone() });
+        }
         if opt.fix_structure {
-            tries.push(OeOptions { fix_structure: false, ..opt.clone() });
+            tries.push(OeOptions { fix_structure: false, shape: None, ..opt.clone() });
         }
         for o in &tries {
             match fit_oe_once(u, y, ts, fit_end, spec, starts, o) {
@@ -601,23 +696,38 @@ fn fit_oe_once(
     }
     let mut prob = Problem::new(u, y, ts, end, opt.skip, spec)?;
     prob.require_invertible = opt.require_invertible;
+    prob.linear = opt.linear;
+    if let (Some(ar), Some(sh), true) = (opt.structure, opt.shape, opt.fix_structure) {
+        // Everything nonlinear is known: one linear solve.
+        let phi = [ar[0], ar[1], sh[0], sh[1], sh[2], opt.delay.unwrap_or(0.0)];
+        let sol = prob.solve(&phi).ok_or(FitError::NoStableModel)?;
+        let model = prob.model(&phi, &sol.theta);
+        return Ok(Fit { model, rms_fit: (sol.cost / sol.residual.len() as f64).sqrt(), invertible: false });
+    }
     let u_amp = u[..end].iter().fold(0.0f64, |m, v| m.max(v.abs())).max(1e-9);
 
     // Stage A: structures. A single-frequency record pins only one complex gain of G,
     // which many resonances match, so structures are ranked with a loop present (a middle
     // shape): the loop's harmonics, passing through G, tell them apart.
     let nyq = 0.5 / ts;
-    let mid_shape = |ar: [f64; 2]| -> Phi { [ar[0], ar[1], 0.0, 0.75 / u_amp, 2.25 / u_amp] };
-    let mut ar_cands: Vec<(f64, [f64; 2])> = vec![];
-    match opt.structure {
-        Some(ar) => ar_cands.extend(prob.solve(&mid_shape(ar)).map(|s| (s.cost, ar))),
-        None => {
-            for i in 0..16 {
-                let f_r = 5.0 * (nyq * 0.9 / 5.0f64).powf(i as f64 / 15.0);
-                for zeta in [0.01, 0.03, 0.1, 0.3, 1.0, 3.0] {
-                    let ar = resonance_ar(f_r, zeta, ts);
-                    if let Some(s) = prob.solve(&mid_shape(ar)) {
-                        ar_cands.push((s.cost, ar));
+    let delays: Vec<f64> = if opt.fit_delay && !opt.fix_structure {
+        vec![0.0, 0.5, 1.0, 1.5]
+    } else {
+        vec![opt.delay.unwrap_or(0.0)]
+    };
+    let mid_shape = |ar: [f64; 2], tau: f64| -> Phi { [ar[0], ar[1], 0.0, 0.75 / u_amp, 2.25 / u_amp, tau] };
+    let mut ar_cands: Vec<(f64, [f64; 2], f64)> = vec![];
+    for &tau in &delays {
+        match opt.structure {
+            Some(ar) => ar_cands.extend(prob.solve(&mid_shape(ar, tau)).map(|s| (s.cost, ar, tau))),
+            None => {
+                for i in 0..16 {
+                    let f_r = 5.0 * (nyq * 0.9 / 5.0f64).powf(i as f64 / 15.0);
+                    for zeta in [0.01, 0.03, 0.1, 0.3, 1.0, 3.0] {
+                        let ar = resonance_ar(f_r, zeta, ts);
+                        if let Some(s) = prob.solve(&mid_shape(ar, tau)) {
+                            ar_cands.push((s.cost, ar, tau));
+                        }
                     }
                 }
             }
@@ -627,11 +737,11 @@ fn fit_oe_once(
 
     // Stage B: loop shapes on the best structures.
     let mut cands: Vec<(f64, Phi)> = vec![];
-    for &(_, ar) in ar_cands.iter().take(6) {
+    for &(_, ar, tau) in ar_cands.iter().take(6) {
         for kappa in [0.3, 1.0, 3.0, 10.0] {
             for q in [-0.5, 0.5] {
                 let sum = kappa / u_amp;
-                let phi = [ar[0], ar[1], 0.0, sum * q / 2.0, sum * (1.0 - q / 2.0)];
+                let phi = [ar[0], ar[1], 0.0, sum * q / 2.0, sum * (1.0 - q / 2.0), tau];
                 if let Some(s) = prob.solve(&phi) {
                     cands.push((s.cost, phi));
                 }
@@ -646,7 +756,11 @@ fn fit_oe_once(
                 (true, Some(ar)) => ar,
                 _ => m.ext.ar,
             };
-            let phi = [ar[0], ar[1], m.ext.bw.a0 / amp, sgn * m.ext.bw.gamma, m.ext.bw.beta];
+            let tau = match (opt.fix_structure, opt.structure) {
+                (true, Some(_)) => opt.delay.unwrap_or(0.0),
+                _ => m.delay,
+            };
+            let phi = [ar[0], ar[1], m.ext.bw.a0 / amp, sgn * m.ext.bw.gamma, m.ext.bw.beta, tau];
             if let Some(s) = prob.solve(&phi) {
                 cands.push((s.cost * 0.999, phi)); // prefer a given start on ties
             }
@@ -657,8 +771,12 @@ fn fit_oe_once(
     // Stage C: Levenberg–Marquardt from the best few.
     let mut best: Option<(Phi, Solution)> = None;
     for &(_, phi) in cands.iter().take(opt.lm_starts.max(1)) {
-        let first_free = if opt.fix_structure && opt.structure.is_some() { 2 } else { 0 };
-        if let Some((p, s)) = prob.levenberg_marquardt(phi, opt.max_iter, first_free) {
+        let structure_fixed = opt.fix_structure && opt.structure.is_some();
+        let mut free: Vec<usize> = if structure_fixed { vec![2, 3, 4] } else { vec![0, 1, 2, 3, 4] };
+        if opt.fit_delay && !structure_fixed {
+            free.push(5);
+        }
+        if let Some((p, s)) = prob.levenberg_marquardt(phi, opt.max_iter, &free) {
             if best.as_ref().is_none_or(|b| s.cost < b.1.cost) {
                 best = Some((p, s));
             }
@@ -691,6 +809,7 @@ mod tests {
             drive_hz: 23.0,
             branches: vec![Branch { order: 3, alpha_s: 0.8, alpha_c: -0.5, ar: [0.0, 0.0] }],
             drift: vec![],
+            delay: 0.0,
         }
     }
 

@@ -6,6 +6,7 @@ pub mod analysis;
 pub mod diagnose;
 pub mod experiment;
 pub mod fit;
+pub mod hidden;
 pub mod plot;
 pub mod report;
 pub mod sweep;

@@ -2,9 +2,8 @@
 //!
 //! Every failure prints one line naming what went wrong and where, and exits non-zero.
 
-use boucwen_cli::sweep::{self, HarmonicChoice, SweepOptions};
-use boucwen_cli::{experiment::CompensationSettings, report};
-use boucwen_core::compensator::PhaseRule;
+use boucwen_cli::report;
+use boucwen_cli::sweep::{self, HarmonicChoice, ResponseSource, SweepOptions};
 use boucwen_sim::Scenario;
 use clap::{Parser, Subcommand, ValueEnum};
 use std::io::IsTerminal;
@@ -39,7 +38,9 @@ enum Harmonics {
 
 #[derive(Clone, Copy, ValueEnum)]
 enum Phase {
-    /// From the identified structure's frequency response at n·f.
+    /// Identified at the operating point: the drive plus a small probe at n·f.
+    Probe,
+    /// The identified model's frequency response at n·f.
     Model,
     /// The paper's table (eqs. 22/23): 0 below 66 Hz, π above.
     Table,
@@ -60,7 +61,7 @@ struct SweepArgs {
     #[arg(long, default_value_t = 1.0)]
     step: f64,
     /// Length of each record: the identification run and each tracking run (s).
-    #[arg(long, default_value_t = 10.0)]
+    #[arg(long, default_value_t = 15.0)]
     seconds: f64,
     /// Scenario file of the virtual bimorph (TOML); the paper's actuator if omitted.
     #[arg(long)]
@@ -68,8 +69,8 @@ struct SweepArgs {
     /// How the enhanced model's harmonic order is chosen.
     #[arg(long, value_enum, default_value_t = Harmonics::Auto)]
     harmonics: Harmonics,
-    /// How the harmonic cancellation obtains the plant's phase at n·f.
-    #[arg(long, value_enum, default_value_t = Phase::Model)]
+    /// Where the harmonic cancellation takes the actuator's response at n·f from.
+    #[arg(long, value_enum, default_value_t = Phase::Probe)]
     phase: Phase,
     /// Print one JSON object on stdout instead of the table.
     #[arg(long)]
@@ -104,12 +105,10 @@ fn sweep_cmd(a: SweepArgs) -> Result<(), String> {
         Harmonics::Auto => HarmonicChoice::Auto,
         Harmonics::Paper => HarmonicChoice::Paper,
     };
-    opts.compensation = CompensationSettings {
-        phase_rule: match a.phase {
-            Phase::Model => PhaseRule::Model,
-            Phase::Table => PhaseRule::Table { flip_hz: 66.0 },
-        },
-        ..CompensationSettings::default()
+    opts.response = match a.phase {
+        Phase::Probe => ResponseSource::Probe,
+        Phase::Model => ResponseSource::Model,
+        Phase::Table => ResponseSource::Table { flip_hz: 66.0 },
     };
     let bar = std::io::stderr().is_terminal().then(|| {
         let b = indicatif::ProgressBar::new(opts.freqs.len() as u64);

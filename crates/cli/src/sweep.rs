@@ -31,13 +31,14 @@
 //!    synthesised from the extended model. The proposed law cancels the harmonic that the
 //!    tracking error under `u_f` shows (the paper's Fig. 13 reasoning: the odd harmonic
 //!    holding the largest share of that error, at least [`MIN_HARMONIC_SHARE`] of its power
-//!    and [`MIN_HARMONIC_REL`] of `α`); its `u_f` comes from the first two equations of the
+//!    and [`MIN_CANCEL_REL`] of `α`); its `u_f` comes from the first two equations of the
 //!    enhanced model when that model carries the same harmonic and is invertible, else from
 //!    the extended model. Where no harmonic qualifies the proposed law is `u_f` itself.
 
 use crate::analysis;
 use crate::experiment::{self, CompensationSettings, Trace};
 use crate::fit::{self, FitError, HostModel, ModelSpec, OeOptions};
+use boucwen_core::compensator::{HarmonicSpec, PhaseRule};
 use boucwen_sim::{Bimorph, Scenario, SimError};
 use rayon::prelude::*;
 use std::fmt;
@@ -50,6 +51,26 @@ pub enum HarmonicChoice {
     /// The paper's table: 5th at 14 Hz, 3rd at 18–28 Hz, none elsewhere.
     Paper,
 }
+
+/// Where the harmonic cancellation takes the actuator's response at `n·f` from.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum ResponseSource {
+    /// The identified model's frequency response (small-signal structure, with the delay).
+    Model,
+    /// The paper's table (eqs. 22/23): 0 below the flip frequency, π above.
+    Table {
+        /// The flip frequency (Hz; 66 in the paper).
+        flip_hz: f64,
+    },
+    /// The response identified at the operating point: the identification drive plus a
+    /// small probe at `n·f`, for [`PROBE_SECONDS`].
+    Probe,
+}
+
+/// Length of a probe run (s).
+pub const PROBE_SECONDS: f64 = 3.0;
+/// Probe amplitude relative to the drive amplitude.
+pub const PROBE_REL: f64 = 0.01;
 
 /// Settings of a sweep.
 #[derive(Clone, Debug)]
@@ -66,6 +87,8 @@ pub struct SweepOptions {
     pub harmonics: HarmonicChoice,
     /// Compensator settings.
     pub compensation: CompensationSettings,
+    /// Where the cancellation takes the actuator's response at `n·f` from.
+    pub response: ResponseSource,
     /// Frequencies whose traces are kept for plots.
     pub trace_freqs: Vec<f64>,
 }
@@ -80,6 +103,7 @@ impl SweepOptions {
             drive_amplitude: 1.0,
             harmonics: HarmonicChoice::Auto,
             compensation: CompensationSettings::default(),
+            response: ResponseSource::Probe,
             trace_freqs: vec![1.0, 14.0, 15.0, 23.0],
         }
     }
@@ -89,24 +113,28 @@ impl SweepOptions {
     pub fn settle_s(&self) -> f64 {
         (0.2 * self.seconds).max(1.0).min(0.5 * self.seconds)
     }
-
-    /// Seconds of actuator time the sweep simulates.
-    pub fn actuator_seconds(&self) -> f64 {
-        self.freqs.len() as f64 * self.seconds * RUNS_PER_FREQUENCY as f64
-    }
 }
-
-/// Records per frequency: one identification run and four tracking runs.
-pub const RUNS_PER_FREQUENCY: usize = 5;
 
 /// Length of the broadband structure record (s).
 pub const STRUCTURE_SECONDS: f64 = 20.0;
+/// Peak of the structure record relative to the drive amplitude: small, so the actuator is
+/// nearly linear (the loop and the stiffening barely act).
+pub const STRUCTURE_AMPLITUDE: f64 = 0.1;
 
-/// The structure identified from a broadband record.
+/// Length of the quasi-static loop record (s) and its frequency (Hz).
+pub const LOOP_SECONDS: f64 = 6.0;
+/// Frequency of the quasi-static loop record (Hz): slow enough that the structure acts as
+/// its static gain (the paper's Fig. 2 is such a loop).
+pub const LOOP_HZ: f64 = 1.0;
+
+/// The actuator characterised once: the structure from a broadband record and the loop
+/// shape from a quasi-static one.
 #[derive(Clone, Debug)]
 pub struct Structure {
-    /// The extended model fitted to the multisine record.
+    /// The extended model fitted to the multisine record (its AR part is the structure).
     pub model: HostModel,
+    /// The loop shape `[A0/A, γ', β]` fitted to the quasi-static record with that structure.
+    pub shape: [f64; 3],
     /// Its fitting RMS (µm).
     pub rms_fit_um: f64,
     /// The resonance of its AR part (Hz), if the poles are complex.
@@ -114,17 +142,36 @@ pub struct Structure {
 }
 
 /// Identifies the structure from a multisine record on a fresh actuator.
-pub fn identify_structure(scenario: &Scenario) -> Result<Structure, SweepError> {
+pub fn identify_structure(scenario: &Scenario, drive_amplitude: f64) -> Result<Structure, SweepError> {
     let ts = scenario.sampling.ts_s;
-    let n = (STRUCTURE_SECONDS / ts).round() as usize;
-    let u = experiment::multisine(1.0, 1.0, (0.2 / ts).min(200.0), 40, ts, n);
+    let err = |e| SweepError::Fit(0.0, e);
     let seed = scenario.seed.wrapping_mul(1_000_003).wrapping_sub(1);
+    // Structure and delay: a small broadband record, where the actuator is nearly linear.
+    let n = (STRUCTURE_SECONDS / ts).round() as usize;
+    let u =
+        experiment::multisine(STRUCTURE_AMPLITUDE * drive_amplitude, 1.0, (0.2 / ts).min(200.0), 40, ts, n);
     let y = Bimorph::new(&scenario.clone().with_seed(seed))?.run(&u)?;
-    let opt = OeOptions { max_samples: 8000, ..OeOptions::default() };
-    let fit = fit::fit_oe(&u, &y, ts, n, &ModelSpec::extended(1.0), &[], &opt)
-        .map_err(|e| SweepError::Fit(0.0, e))?;
+    let opt = OeOptions { max_samples: 8000, fit_delay: true, linear: true, ..OeOptions::default() };
+    let fit = fit::fit_oe(&u, &y, ts, n, &ModelSpec::extended(1.0), &[], &opt).map_err(err)?;
     let resonance_hz = crate::diagnose::resonance_hz(fit.model.ext.ar, ts);
-    Ok(Structure { model: fit.model, rms_fit_um: fit.rms_fit, resonance_hz })
+    // The loop: a quasi-static sine at the drive amplitude, with that structure and delay.
+    let n_loop = (LOOP_SECONDS / ts).round() as usize;
+    let u_loop =
+        experiment::sine(drive_amplitude, LOOP_HZ, ts, n_loop).map_err(|e| SweepError::Core(LOOP_HZ, e))?;
+    let y_loop = Bimorph::new(&scenario.clone().with_seed(seed.wrapping_sub(1)))?.run(&u_loop)?;
+    let loop_opt = OeOptions {
+        max_samples: n_loop,
+        structure: Some(fit.model.ext.ar),
+        fix_structure: true,
+        delay: Some(fit.model.delay),
+        ..OeOptions::default()
+    };
+    let loop_fit = fit::fit_oe(&u_loop, &y_loop, ts, n_loop, &ModelSpec::extended(LOOP_HZ), &[], &loop_opt)
+        .map_err(err)?;
+    let shape = loop_fit.model.shape().ok_or(SweepError::Fit(LOOP_HZ, FitError::NoStableModel))?;
+    let mut model = loop_fit.model;
+    model.ext.ar = fit.model.ext.ar;
+    Ok(Structure { model, shape, rms_fit_um: fit.rms_fit, resonance_hz })
 }
 
 /// One frequency's results. `NaN` where a model was unstable in free run.
@@ -263,9 +310,13 @@ fn choose_order(
 
 /// Smallest share of the error power a harmonic must hold to be chosen.
 pub const MIN_HARMONIC_SHARE: f64 = 0.2;
-/// Smallest amplitude, relative to the output's (or reference's) fundamental, of a chosen
-/// harmonic: below this it is not conspicuous enough to model or cancel.
+/// Smallest amplitude of a harmonic the model gets a branch for, relative to the output's
+/// fundamental: below this a term is not worth it.
 pub const MIN_HARMONIC_REL: f64 = 0.02;
+/// Smallest amplitude of a harmonic the proposed law cancels, relative to `α`: a change of
+/// controller must be worth its side effects (the cancellation input passes through the
+/// loop and leaves a little at other frequencies).
+pub const MIN_CANCEL_REL: f64 = 0.05;
 
 /// The dominant odd harmonic (order ≥ 3, below Nyquist) of `x`, if it holds at least
 /// `min_share` of `x`'s power and has an amplitude of at least `min_amp`.
@@ -290,7 +341,7 @@ fn cancel_order(choice: HarmonicChoice, f: f64, ts: f64, uf: &Trace, settle: usi
         HarmonicChoice::Auto => {
             let e = uf.error();
             let from = settle.min(e.len());
-            dominant_odd_harmonic(&e[from..], f, ts, MIN_HARMONIC_SHARE, MIN_HARMONIC_REL * alpha.abs())
+            dominant_odd_harmonic(&e[from..], f, ts, MIN_HARMONIC_SHARE, MIN_CANCEL_REL * alpha.abs())
                 .map_or(0, |(n, _)| n)
         }
     }
@@ -314,7 +365,7 @@ pub fn run_frequency(
     structure: &Structure,
     index: usize,
     keep_traces: bool,
-) -> Result<(Row, Option<Traces>), SweepError> {
+) -> Result<(Row, Option<Traces>, f64), SweepError> {
     let f = opts.freqs[index];
     let ts = opts.scenario.sampling.ts_s;
     let n = (opts.seconds / ts).round() as usize;
@@ -329,10 +380,16 @@ pub fn run_frequency(
     // 1. Identification record.
     let u = experiment::sine(opts.drive_amplitude, f, ts, n).map_err(core)?;
     let y = plant(0)?.run(&u)?;
+    let mut samples = n;
 
     // 2. Fits.
-    let oe =
-        OeOptions { structure: Some(structure.model.ext.ar), fix_structure: true, ..OeOptions::default() };
+    let oe = OeOptions {
+        structure: Some(structure.model.ext.ar),
+        fix_structure: true,
+        delay: Some(structure.model.delay),
+        shape: Some(structure.shape),
+        ..OeOptions::default()
+    };
     let ext_fit = fit::fit_oe(&u, &y, ts, fit_end, &ModelSpec::extended(f), &[], &oe).map_err(fit_err)?;
     let ext_oe = ext_fit.model.clone();
     let (order, _share) = choose_order(opts.harmonics, f, ts, &u, &y, &ext_oe, fit_end).map_err(fit_err)?;
@@ -363,25 +420,57 @@ pub fn run_frequency(
     // 3. Compensation: α from eq. (25) on the identification record.
     let alpha = experiment::eq25_amplitude(&u, &y);
     let set = &opts.compensation;
-    let tracking = |model: &HostModel, orders: &[u32], run: u64| -> Result<Trace, SweepError> {
+    // The actuator's response at n·f for the cancellation (probed once per order).
+    let mut probed: Vec<(u32, nalgebra::Complex<f64>)> = vec![];
+    let mut responses = |model: &HostModel, order: u32| -> Result<Vec<HarmonicSpec<f64>>, SweepError> {
+        if order == 0 {
+            return Ok(vec![]);
+        }
+        let response = match opts.response {
+            ResponseSource::Model => {
+                experiment::model_harmonics(model, &[order], f, ts, PhaseRule::Model)[0].response
+            }
+            ResponseSource::Table { flip_hz } => {
+                experiment::model_harmonics(model, &[order], f, ts, PhaseRule::Table { flip_hz })[0].response
+            }
+            ResponseSource::Probe => match probed.iter().find(|(o, _)| *o == order) {
+                Some((_, g)) => *g,
+                None => {
+                    let m = ((PROBE_SECONDS / ts).round() as usize).min(n);
+                    let eps = PROBE_REL * opts.drive_amplitude;
+                    let up = experiment::with_probe(&u[..m], f, order, eps, ts).map_err(core)?;
+                    let yp = plant(5)?.run(&up)?;
+                    samples += m;
+                    let g = experiment::probe_response(&y[..m], &yp, f, order, eps, ts).map_err(core)?;
+                    probed.push((order, g));
+                    g
+                }
+            },
+        };
+        Ok(vec![HarmonicSpec { order, response }])
+    };
+    let tracking = |model: &HostModel, h: &[HarmonicSpec<f64>], run: u64| -> Result<Trace, SweepError> {
         let mut b = plant(run)?;
         let mut p = |uk: f64| b.step(uk).unwrap_or(f64::NAN);
-        experiment::track(&mut p, model, orders, alpha, f, ts, n, set).map_err(core)
+        experiment::track(&mut p, model, h, alpha, f, ts, n, set).map_err(core)
     };
     let finite = |x: f64| if x.is_finite() { x } else { f64::NAN };
     // u_f alone is synthesised from the extended model. The proposed law cancels the
     // harmonic the tracking error under u_f shows (Fig. 13); its u_f comes from the first two
     // equations of the enhanced model (the paper's section 4) when that model carries the
     // same harmonic and is invertible, else from the extended model.
-    let invertible = |m: &HostModel| m.ext.bw.min_output_slope().is_some_and(|s| s > 0.0);
+    let invertible = |m: &HostModel| fit::invertible_for(m, &u);
     let uf_rls = tracking(&ext_rls, &[], 1)?;
     let n_rls = cancel_order(opts.harmonics, f, ts, &uf_rls, settle, alpha);
     let base_rls = if n_rls == order && invertible(&enh_rls) { &enh_rls } else { &ext_rls };
-    let prop_rls = if n_rls == 0 { uf_rls.clone() } else { tracking(base_rls, &[n_rls], 2)? };
+    let h_rls = responses(base_rls, n_rls)?;
+    let prop_rls = if n_rls == 0 { uf_rls.clone() } else { tracking(base_rls, &h_rls, 2)? };
     let uf_oe = tracking(&ext_oe, &[], 3)?;
     let n_oe = cancel_order(opts.harmonics, f, ts, &uf_oe, settle, alpha);
     let base_oe = if n_oe == order && enh_fit.invertible { &enh_oe } else { &ext_oe };
-    let prop_oe = if n_oe == 0 { uf_oe.clone() } else { tracking(base_oe, &[n_oe], 4)? };
+    let h_oe = responses(base_oe, n_oe)?;
+    let prop_oe = if n_oe == 0 { uf_oe.clone() } else { tracking(base_oe, &h_oe, 4)? };
+    samples += 2 * n + usize::from(n_rls > 0) * n + usize::from(n_oe > 0) * n;
 
     let row = Row {
         freq_hz: f,
@@ -409,7 +498,7 @@ pub fn run_frequency(
         track_uf: uf_oe,
         track_proposed: prop_oe,
     });
-    Ok((row, traces))
+    Ok((row, traces, samples as f64 * ts))
 }
 
 /// A finished sweep.
@@ -466,8 +555,8 @@ pub fn run(opts: &SweepOptions, progress: &(dyn Fn() + Sync)) -> Result<SweepRes
         return Err(SweepError::Options(format!("--seconds {} gives fewer than 1000 samples", opts.seconds)));
     }
     let t0 = std::time::Instant::now();
-    let structure = identify_structure(&opts.scenario)?;
-    let results: Vec<Result<(Row, Option<Traces>), SweepError>> = (0..opts.freqs.len())
+    let structure = identify_structure(&opts.scenario, opts.drive_amplitude)?;
+    let results: Vec<Result<(Row, Option<Traces>, f64), SweepError>> = (0..opts.freqs.len())
         .into_par_iter()
         .map(|i| {
             let keep = opts.trace_freqs.iter().any(|t| (t - opts.freqs[i]).abs() < 1e-9);
@@ -478,16 +567,12 @@ pub fn run(opts: &SweepOptions, progress: &(dyn Fn() + Sync)) -> Result<SweepRes
         .collect();
     let mut rows = vec![];
     let mut traces = vec![];
+    let mut actuator_s = STRUCTURE_SECONDS + LOOP_SECONDS;
     for r in results {
-        let (row, tr) = r?;
+        let (row, tr, secs) = r?;
         rows.push(row);
         traces.extend(tr);
+        actuator_s += secs;
     }
-    Ok(SweepResult {
-        structure,
-        rows,
-        traces,
-        wall_s: t0.elapsed().as_secs_f64(),
-        actuator_s: opts.actuator_seconds() + STRUCTURE_SECONDS,
-    })
+    Ok(SweepResult { structure, rows, traces, wall_s: t0.elapsed().as_secs_f64(), actuator_s })
 }

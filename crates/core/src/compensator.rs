@@ -54,6 +54,14 @@
 //! ## Timing
 //! [`Compensator::step`] at sample `k` takes `d[k]` and the measurement `y[k-1]` (the
 //! response to the previous output, `None` if it was lost), adapts, and returns `u[k]`.
+//!
+//! ## Preview of a delayed plant
+//! A sampled actuator answers later than the model's instantaneous `A1·u[k]` (the zero-order
+//! hold, the driver, transport delay): in effect it applies the input `τ` samples late. The
+//! exact sampled model has a zero near `z = -1`, whose inverse is unusable, so the model
+//! keeps the paper's form and the delay is compensated by preview instead: with a
+//! reference known ahead (a planned trajectory, a sine), [`Compensator::step_previewed`]
+//! inverts for `d` at `k + τ` and measures the tracking error against `d[k]`.
 
 use crate::error::finite;
 use crate::model::{BoucWenParams, ExtendedParams, push_front};
@@ -333,7 +341,21 @@ impl<T: Real, const P: usize, const M: usize> Compensator<T, P, M> {
     /// On `Err` (non-finite `d` or `y`) nothing changed.
     #[inline]
     pub fn step(&mut self, d: T, y_prev: Option<T>) -> Result<CompensatorOutput<T>, Error> {
+        self.step_previewed(d, d, y_prev)
+    }
+
+    /// One sample with preview: the inverse works on `d_ahead` (the reference `τ` samples
+    /// ahead, for a plant that applies its input `τ` samples late), the tracking error on `d`.
+    /// On `Err` (non-finite input) nothing changed.
+    #[inline]
+    pub fn step_previewed(
+        &mut self,
+        d: T,
+        d_ahead: T,
+        y_prev: Option<T>,
+    ) -> Result<CompensatorOutput<T>, Error> {
         finite(d, "d")?;
+        finite(d_ahead, "d_ahead")?;
         if let Some(y) = y_prev {
             finite(y, "y")?;
         }
@@ -354,7 +376,7 @@ impl<T: Real, const P: usize, const M: usize> Compensator<T, P, M> {
             }
         }
 
-        let inv = self.inverse.step(&mut self.state, d, &self.cfg.saturation);
+        let inv = self.inverse.step(&mut self.state, d_ahead, &self.cfg.saturation);
         let mut u_c = T::zero();
         for m in 0..M {
             let h = &self.cfg.harmonics[m];

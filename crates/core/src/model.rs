@@ -106,6 +106,14 @@ impl<T: Real> BoucWenParams<T> {
     /// `h_hi`. `None` when `h` is unbounded.
     pub fn min_output_slope(&self) -> Option<T> {
         let (lo, hi) = self.h_range()?;
+        Some(self.min_output_slope_over(lo, hi))
+    }
+
+    /// [`Self::min_output_slope`] over `h ∈ [lo, hi]` only (an operating range, e.g. the
+    /// range a loop of known amplitude reaches, with a margin: a thin loop's saturation range
+    /// can be many times what it ever reaches).
+    pub fn min_output_slope_over(&self, lo: T, hi: T) -> T {
+        let (lo, hi) = (lo.min(T::zero()), hi.max(T::zero()));
         let mut worst = T::zero();
         let mut first = true;
         for h in [lo, T::zero(), hi] {
@@ -117,7 +125,7 @@ impl<T: Real> BoucWenParams<T> {
                 }
             }
         }
-        Some(worst)
+        worst
     }
 }
 

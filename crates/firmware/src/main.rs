@@ -8,25 +8,32 @@
 //!
 //! | module | what |
 //! |---|---|
-//! | [`board`] | QEMU `mps2-an386`: UART0, timers, interrupts, semihosting (the only board-specific code) |
+//! | [`board`] | QEMU `mps2-an386` (default): UART0, timers, interrupts, semihosting; or an STM32F4 (feature `stm32f4`, build-only): USART2, TIM2. The only board-specific code |
 //! | [`link`] | the normal mode: protocol on UART0, control step on every timer tick |
 //! | [`selftest`] | compensator against the on-chip plant, outputs as bits, steps timed |
 //! | [`ring`] | the interrupt-to-main-loop byte queue |
 //!
-//! The mode comes from QEMU's semihosting command line: `selftest PATH` runs the
-//! self-test on the frames in the host file `PATH`; anything else serves the link.
+//! On `mps2-an386` the mode comes from QEMU's semihosting command line: `selftest PATH`
+//! runs the self-test on the frames in the host file `PATH`; anything else serves the link.
+//! The STM32F4 build always serves the link.
 //! `cargo xtask firmware | qemu | hil` build and run it.
 #![no_std]
 #![no_main]
 
+#[cfg(not(feature = "stm32f4"))]
+#[path = "board/mps2_an386.rs"]
 mod board;
+#[cfg(feature = "stm32f4")]
+#[path = "board/stm32f4.rs"]
+mod board;
+#[cfg(not(feature = "stm32f4"))]
 mod console;
 mod link;
 mod ring;
+#[cfg(not(feature = "stm32f4"))]
 mod selftest;
 
 use cortex_m_rt::entry;
-use cortex_m_semihosting::debug;
 
 /// The UART's nominal rate (QEMU does not pace the UART; a real link needs this much for
 /// 1 kHz, see `boucwen_hal::wire`).
@@ -41,32 +48,24 @@ fn main() -> ! {
         fail(format_args!("board already taken"));
     };
     let mut cmdline = [0u8; 320];
-    let line = board::semihosting::command_line(&mut cmdline).unwrap_or("");
-    let mut words = line.split(' ');
-    if words.next() == Some("selftest") {
-        let path = words.next().unwrap_or("");
-        let mut buf = [0u8; FRAMES_MAX];
-        let Some(frames) = board::semihosting::read_file(path, &mut buf) else {
-            fail(format_args!("selftest: cannot read the frames file '{path}'"));
-        };
-        match selftest::run(&mut board, frames) {
-            Ok(()) => debug::exit(debug::EXIT_SUCCESS),
+    let mut buf = [0u8; FRAMES_MAX];
+    match board::self_test_frames(&mut cmdline, &mut buf) {
+        Ok(None) => link::run(&mut board),
+        Err(path) => fail(format_args!("selftest: cannot read the frames file '{path}'")),
+        #[cfg(not(feature = "stm32f4"))]
+        Ok(Some(frames)) => match selftest::run(&mut board, frames) {
+            Ok(()) => board::exit(true),
             Err(e) => fail(format_args!("{e}")),
-        }
-        loop {
-            cortex_m::asm::wfi();
-        }
+        },
+        #[cfg(feature = "stm32f4")]
+        Ok(Some(_)) => fail(format_args!("no self-test on this board")),
     }
-    link::run(&mut board)
 }
 
-/// Reports `what` on the host console and ends the QEMU run with a failure status.
+/// Reports `what` (on the host console where the board has one) and ends with a failure.
 fn fail(what: core::fmt::Arguments) -> ! {
-    console::line(format_args!("error: {what}"));
-    debug::exit(debug::EXIT_FAILURE);
-    loop {
-        cortex_m::asm::wfi();
-    }
+    board::report(format_args!("error: {what}"));
+    board::exit(false)
 }
 
 #[panic_handler]

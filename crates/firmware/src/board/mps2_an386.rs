@@ -264,3 +264,29 @@ pub mod semihosting {
         result
     }
 }
+
+/// What the host asked for at start-up: the self-test's frames (`selftest PATH` on the
+/// semihosting command line, the file read into `buf`), or `None` to serve the link.
+pub fn self_test_frames<'a>(cmdline: &'a mut [u8], buf: &'a mut [u8]) -> Result<Option<&'a [u8]>, &'a str> {
+    let line = semihosting::command_line(cmdline).unwrap_or("");
+    let mut words = line.split(' ');
+    if words.next() != Some("selftest") {
+        return Ok(None);
+    }
+    let path = words.next().unwrap_or("");
+    semihosting::read_file(path, buf).map(Some).ok_or(path)
+}
+
+/// Ends the run: QEMU exits with success or failure.
+pub fn exit(success: bool) -> ! {
+    use cortex_m_semihosting::debug;
+    debug::exit(if success { debug::EXIT_SUCCESS } else { debug::EXIT_FAILURE });
+    loop {
+        cortex_m::asm::wfi();
+    }
+}
+
+/// Reports a line on the host console.
+pub fn report(what: core::fmt::Arguments) {
+    crate::console::line(what);
+}
