@@ -1,0 +1,204 @@
+//! `boucwen sweep`: the paper's identification and compensation experiments over a frequency
+//! range on the virtual bimorph.
+
+use boucwen_cli::report;
+use boucwen_cli::sweep::{self, HarmonicChoice, ResponseSource, SweepOptions};
+use boucwen_sim::Scenario;
+use clap::ValueEnum;
+use std::io::IsTerminal;
+use std::path::PathBuf;
+
+#[derive(Clone, Copy, ValueEnum)]
+enum Harmonics {
+    /// From the data: the odd harmonic dominating the extended model's residual.
+    Auto,
+    /// The paper's table: 5th at 14 Hz, 3rd at 18–28 Hz.
+    Paper,
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+enum Phase {
+    /// Identified at the operating point: the drive plus a small probe at n·f.
+    Probe,
+    /// The identified model's frequency response at n·f.
+    Model,
+    /// The paper's table (eqs. 22/23): 0 below 66 Hz, π above.
+    Table,
+}
+
+#[derive(clap::Args)]
+pub struct SweepArgs {
+    /// Output directory for sweep.csv and the figures.
+    #[arg(long, default_value = "sweep-out")]
+    out: PathBuf,
+    /// Lowest drive frequency (Hz).
+    #[arg(long, default_value_t = 1.0)]
+    from: f64,
+    /// Highest drive frequency (Hz).
+    #[arg(long, default_value_t = 50.0)]
+    to: f64,
+    /// Frequency step (Hz).
+    #[arg(long, default_value_t = 1.0)]
+    step: f64,
+    /// Length of each record: the identification run and each tracking run (s).
+    #[arg(long, default_value_t = 15.0)]
+    seconds: f64,
+    /// Scenario file of the virtual bimorph (TOML); the paper's actuator if omitted.
+    #[arg(long)]
+    scenario: Option<PathBuf>,
+    /// How the enhanced model's harmonic order is chosen.
+    #[arg(long, value_enum, default_value_t = Harmonics::Auto)]
+    harmonics: Harmonics,
+    /// Where the harmonic cancellation takes the actuator's response at n·f from.
+    #[arg(long, value_enum, default_value_t = Phase::Probe)]
+    phase: Phase,
+    /// Print one JSON object on stdout instead of the table.
+    #[arg(long)]
+    json: bool,
+}
+
+fn frequencies(from: f64, to: f64, step: f64) -> Result<Vec<f64>, String> {
+    if !(from.is_finite() && to.is_finite() && step.is_finite()) {
+        return Err("--from, --to and --step must be finite numbers".into());
+    }
+    if from <= 0.0 || step <= 0.0 || to < from {
+        return Err(format!(
+            "need 0 < --from <= --to and --step > 0 (got --from {from} --to {to} --step {step})"
+        ));
+    }
+    let n = ((to - from) / step + 1e-9).floor() as usize + 1;
+    if n > 10_000 {
+        return Err(format!("{n} frequencies is too many (at most 10000)"));
+    }
+    Ok((0..n).map(|i| ((from + i as f64 * step) * 1e9).round() / 1e9).collect())
+}
+
+pub fn run(a: SweepArgs) -> Result<(), String> {
+    let scenario = match &a.scenario {
+        Some(p) => Scenario::from_path(p).map_err(|e| e.to_string())?,
+        None => Scenario::default(),
+    };
+    let mut opts = SweepOptions::paper(a.seconds);
+    opts.freqs = frequencies(a.from, a.to, a.step)?;
+    opts.scenario = scenario;
+    opts.harmonics = match a.harmonics {
+        Harmonics::Auto => HarmonicChoice::Auto,
+        Harmonics::Paper => HarmonicChoice::Paper,
+    };
+    opts.response = match a.phase {
+        Phase::Probe => ResponseSource::Probe,
+        Phase::Model => ResponseSource::Model,
+        Phase::Table => ResponseSource::Table { flip_hz: 66.0 },
+    };
+    let bar = std::io::stderr().is_terminal().then(|| {
+        let b = indicatif::ProgressBar::new(opts.freqs.len() as u64);
+        b.set_style(
+            indicatif::ProgressStyle::with_template("{bar:40} {pos}/{len} frequencies  {elapsed}")
+                .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+        );
+        b
+    });
+    let tick = || {
+        if let Some(b) = &bar {
+            b.inc(1);
+        }
+    };
+    let result = sweep::run(&opts, &tick).map_err(|e| e.to_string())?;
+    if let Some(b) = &bar {
+        b.finish_and_clear();
+    }
+    let files = report::write_sweep(&result, &a.out).map_err(|e| e.to_string())?;
+    if a.json {
+        println!("{}", sweep_json(&result, &files));
+    } else {
+        print_table(&result);
+        eprintln!("wrote {} files to {}", files.len(), a.out.display());
+    }
+    eprintln!(
+        "{:.0} s of actuator time in {:.2} s on {} threads: {:.0}x real time",
+        result.actuator_s,
+        result.wall_s,
+        rayon::current_num_threads(),
+        result.speedup()
+    );
+    Ok(())
+}
+
+fn print_table(r: &sweep::SweepResult) {
+    if let Some(f) = r.structure.resonance_hz {
+        println!(
+            "structure (broadband record): resonance {f:.1} Hz, fit RMS {:.3} µm",
+            r.structure.rms_fit_um
+        );
+    }
+    println!(
+        "{:>7} {:>5} | {:>9} {:>9} {:>9} {:>9} | {:>9} {:>9} {:>9} {:>9}",
+        "f (Hz)", "n/c/c", "ext", "enh", "u_f", "proposed", "ext OE", "enh OE", "u_f OE", "prop OE"
+    );
+    println!("{:>13} | {:^39} | {:^39}", "", "paper RLS (µm)", "output-error fit (µm)");
+    for w in &r.rows {
+        println!(
+            "{:>7.2} {:>5} | {:>9.4} {:>9.4} {:>9.4} {:>9.4} | {:>9.4} {:>9.4} {:>9.4} {:>9.4}",
+            w.freq_hz,
+            format!("{}/{}/{}", w.harmonic_order, w.cancel_order, w.cancel_order_oe),
+            w.rms_extended_um,
+            w.rms_enhanced_um,
+            w.rmse_uf_um,
+            w.rmse_proposed_um,
+            w.rms_extended_oe_um,
+            w.rms_enhanced_oe_um,
+            w.rmse_uf_oe_um,
+            w.rmse_proposed_oe_um
+        );
+    }
+}
+
+fn num(x: f64) -> serde_json::Value {
+    serde_json::Number::from_f64(x).map_or(serde_json::Value::Null, serde_json::Value::Number)
+}
+
+fn sweep_json(r: &sweep::SweepResult, files: &[PathBuf]) -> serde_json::Value {
+    let rows: Vec<serde_json::Value> = r
+        .rows
+        .iter()
+        .map(|w| {
+            serde_json::json!({
+                "freq_hz": num(w.freq_hz),
+                "rms_extended_um": num(w.rms_extended_um),
+                "rms_enhanced_um": num(w.rms_enhanced_um),
+                "rmse_uf_um": num(w.rmse_uf_um),
+                "rmse_proposed_um": num(w.rmse_proposed_um),
+                "harmonic_order": w.harmonic_order,
+                "cancel_order": w.cancel_order,
+                "cancel_order_oe": w.cancel_order_oe,
+                "alpha_um": num(w.alpha_um),
+                "rms_extended_oe_um": num(w.rms_extended_oe_um),
+                "rms_enhanced_oe_um": num(w.rms_enhanced_oe_um),
+                "rmse_uf_oe_um": num(w.rmse_uf_oe_um),
+                "rmse_proposed_oe_um": num(w.rmse_proposed_oe_um),
+            })
+        })
+        .collect();
+    serde_json::json!({
+        "structure_resonance_hz": r.structure.resonance_hz.map(num),
+        "rows": rows,
+        "files": files.iter().map(|p| p.display().to_string()).collect::<Vec<_>>(),
+        "wall_s": num(r.wall_s),
+        "actuator_s": num(r.actuator_s),
+        "speedup": num(r.speedup()),
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn frequency_lists() {
+        assert_eq!(frequencies(1.0, 3.0, 1.0).unwrap(), vec![1.0, 2.0, 3.0]);
+        assert_eq!(frequencies(1.0, 2.0, 0.3).unwrap(), vec![1.0, 1.3, 1.6, 1.9]);
+        assert!(frequencies(0.0, 3.0, 1.0).is_err());
+        assert!(frequencies(3.0, 1.0, 1.0).is_err());
+        assert!(frequencies(1.0, 3.0, f64::NAN).is_err());
+    }
+}
