@@ -132,13 +132,29 @@ fn print_table(r: &sweep::SweepResult) {
         );
     }
     println!(
-        "{:>7} {:>5} | {:>9} {:>9} {:>9} {:>9} | {:>9} {:>9} {:>9} {:>9}",
-        "f (Hz)", "n/c/c", "ext", "enh", "u_f", "proposed", "ext OE", "enh OE", "u_f OE", "prop OE"
+        "{:>7} {:>5} | {:>9} {:>9} {:>9} {:>9} | {:>9} {:>9} {:>9} {:>9} | {:>9} {:>9} {:>9}",
+        "f (Hz)",
+        "n/c/c",
+        "ext",
+        "enh",
+        "u_f",
+        "proposed",
+        "ext OE",
+        "enh OE",
+        "u_f OE",
+        "prop OE",
+        "open",
+        "PI",
+        "ORC"
     );
-    println!("{:>13} | {:^39} | {:^39}", "", "paper RLS (µm)", "output-error fit (µm)");
+    println!(
+        "{:>13} | {:^39} | {:^39} | {:^29}",
+        "", "paper RLS (µm)", "output-error fit (µm)", "peers (µm)"
+    );
     for w in &r.rows {
         println!(
-            "{:>7.2} {:>5} | {:>9.4} {:>9.4} {:>9.4} {:>9.4} | {:>9.4} {:>9.4} {:>9.4} {:>9.4}",
+            "{:>7.2} {:>5} | {:>9.4} {:>9.4} {:>9.4} {:>9.4} | {:>9.4} {:>9.4} {:>9.4} {:>9.4} | {:>9.4} {:>9.4} \
+             {:>9.4}",
             w.freq_hz,
             format!("{}/{}/{}", w.harmonic_order, w.cancel_order, w.cancel_order_oe),
             w.rms_extended_um,
@@ -148,7 +164,10 @@ fn print_table(r: &sweep::SweepResult) {
             w.rms_extended_oe_um,
             w.rms_enhanced_oe_um,
             w.rmse_uf_oe_um,
-            w.rmse_proposed_oe_um
+            w.rmse_proposed_oe_um,
+            w.rmse_open_um,
+            w.rmse_pi_um,
+            w.rmse_orc_um
         );
     }
 }
@@ -168,6 +187,9 @@ fn sweep_json(r: &sweep::SweepResult, files: &[PathBuf]) -> serde_json::Value {
                 "rms_enhanced_um": num(w.rms_enhanced_um),
                 "rmse_uf_um": num(w.rmse_uf_um),
                 "rmse_proposed_um": num(w.rmse_proposed_um),
+                "rmse_open_um": num(w.rmse_open_um),
+                "rmse_pi_um": num(w.rmse_pi_um),
+                "rmse_orc_um": num(w.rmse_orc_um),
                 "harmonic_order": w.harmonic_order,
                 "cancel_order": w.cancel_order,
                 "cancel_order_oe": w.cancel_order_oe,

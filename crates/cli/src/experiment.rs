@@ -112,6 +112,13 @@ impl Default for CompensationSettings {
 /// Length of the reference's fade-in (s).
 pub const FADE_IN_S: f64 = 0.5;
 
+/// The reference's envelope at sample `k` (fractional): a raised cosine over
+/// [`FADE_IN_S`], then 1.
+fn fade_in(ts: f64) -> impl Fn(f64) -> f64 {
+    let fade = (FADE_IN_S / ts).round().max(1.0);
+    move |k: f64| if k < fade { 0.5 - 0.5 * (std::f64::consts::PI * k.max(0.0) / fade).cos() } else { 1.0 }
+}
+
 /// The plant's response at each harmonic from the model: its frequency response at `n·f`
 /// with the input delay (`e^{-i 2π n f τ Ts}`) under [`PhaseRule::Model`], the paper's table
 /// under [`PhaseRule::Table`].
@@ -217,10 +224,7 @@ pub fn track(
             saturation: set.saturation,
             uc_max: set.uc_max,
         })?;
-        let fade = (FADE_IN_S / ts).round().max(1.0);
-        let envelope = |k: f64| {
-            if k < fade { 0.5 - 0.5 * (std::f64::consts::PI * k.max(0.0) / fade).cos() } else { 1.0 }
-        };
+        let envelope = fade_in(ts);
         // The reference, and for the model's input delay τ the reference τ samples ahead.
         let w = std::f64::consts::TAU * freq_hz * ts;
         let mut t = Trace { d: Vec::with_capacity(n), u: Vec::with_capacity(n), y: Vec::with_capacity(n) };
@@ -245,6 +249,58 @@ pub fn track(
         2 => run::<2>(plant, model, harmonics, alpha, freq_hz, ts, n, set),
         _ => Err(boucwen_core::Error::OutOfRange("harmonic orders (at most 2 are cancelled at once)")),
     }
+}
+
+/// The peer controllers of [`boucwen_core::controllers`], tuned by its rule from `model`.
+#[derive(Clone, Copy, Debug)]
+pub enum Peer {
+    /// `u = d/G0`.
+    OpenLoop,
+    /// The PI feedback alone (no feedforward).
+    Pi,
+    /// Li et al.'s odd-harmonic repetitive controller on that PI.
+    Orc,
+}
+
+/// Tracks the same faded-in reference as [`track`] with a peer controller tuned from
+/// `model` by [`boucwen_core::controllers::tune`] (the model's input delay included,
+/// the default sensitivity bound and ORC placement, plain feedback).
+pub fn track_peer(
+    plant: &mut dyn FnMut(f64) -> f64,
+    model: &HostModel,
+    peer: Peer,
+    alpha: f64,
+    freq_hz: f64,
+    ts: f64,
+    n: usize,
+    set: &CompensationSettings,
+) -> Result<Trace, boucwen_core::Error> {
+    use boucwen_core::controllers::{
+        Controller, ORC_CAPACITY, OpenLoop, OrcController, PiController, TuneOptions, tune,
+    };
+    let drive = Oscillator::new(freq_hz, ts)?;
+    let opts = TuneOptions { input_delay_samples: model.delay, ..TuneOptions::default() };
+    let tuning = tune(&model.ext, drive, ts, set.saturation, &opts)?;
+    let mut ctrl: Box<dyn Controller<f64>> = match peer {
+        Peer::OpenLoop => Box::new(OpenLoop::new(tuning.open_loop)?),
+        Peer::Pi => Box::new(PiController::new(tuning.pi.pi)?),
+        Peer::Orc => Box::new(OrcController::<f64, ORC_CAPACITY>::new(tuning.pi.pi, tuning.orc.orc)?),
+    };
+    let envelope = fade_in(ts);
+    let mut t = Trace { d: Vec::with_capacity(n), u: Vec::with_capacity(n), y: Vec::with_capacity(n) };
+    let mut y_prev = None;
+    for k in 0..n {
+        let kf = k as f64;
+        let (s_now, _) = sin_cos::<f64>(drive.phase_at(k as u64));
+        let d = alpha * envelope(kf) * s_now;
+        let out = ctrl.step(d, y_prev)?;
+        let y = plant(out.u);
+        y_prev = Some(y);
+        t.d.push(d);
+        t.u.push(out.u);
+        t.y.push(y);
+    }
+    Ok(t)
 }
 
 #[cfg(test)]

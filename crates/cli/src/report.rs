@@ -102,7 +102,12 @@ pub fn compensation(r: &SweepResult) -> Chart {
             .points(),
         )
         .with(Series::line("u_f alone, paper-RLS model", x.clone(), col(r, |w| w.rmse_uf_um), 2).dashed())
-        .with(Series::line("proposed, paper-RLS model", x, col(r, |w| w.rmse_proposed_um), 3).dashed())
+        .with(
+            Series::line("proposed, paper-RLS model", x.clone(), col(r, |w| w.rmse_proposed_um), 3).dashed(),
+        )
+        .with(Series::line("open loop d/G0", x.clone(), col(r, |w| w.rmse_open_um), 4))
+        .with(Series::line("PI feedback", x.clone(), col(r, |w| w.rmse_pi_um), 5))
+        .with(Series::line("ORC (Li et al.) on the PI", x, col(r, |w| w.rmse_orc_um), 6).points())
         .log_y()
 }
 

@@ -36,7 +36,7 @@
 //!    the extended model. Where no harmonic qualifies the proposed law is `u_f` itself.
 
 use crate::analysis;
-use crate::experiment::{self, CompensationSettings, Trace};
+use crate::experiment::{self, CompensationSettings, Peer, Trace};
 use crate::fit::{self, FitError, HostModel, ModelSpec, OeOptions};
 use boucwen_core::compensator::{HarmonicSpec, PhaseRule};
 use boucwen_sim::{Bimorph, Scenario, SimError};
@@ -203,11 +203,17 @@ pub struct Row {
     pub rmse_uf_oe_um: f64,
     /// Tracking RMSE with the proposed law, output-error model (µm).
     pub rmse_proposed_oe_um: f64,
+    /// Tracking RMSE in open loop, `u = d/G0` (µm).
+    pub rmse_open_um: f64,
+    /// Tracking RMSE under the PI feedback alone (µm).
+    pub rmse_pi_um: f64,
+    /// Tracking RMSE under Li et al.'s odd-harmonic repetitive controller on the PI (µm).
+    pub rmse_orc_um: f64,
 }
 
 /// The CSV header: the paper's five columns first.
 pub const CSV_HEADER: &str = "freq_hz,rms_extended_um,rms_enhanced_um,rmse_uf_um,rmse_proposed_um,\
-harmonic_order,cancel_order,cancel_order_oe,alpha_um,rms_extended_oe_um,rms_enhanced_oe_um,rmse_uf_oe_um,\
+rmse_open_um,rmse_pi_um,rmse_orc_um,harmonic_order,cancel_order,cancel_order_oe,alpha_um,rms_extended_oe_um,rms_enhanced_oe_um,rmse_uf_oe_um,\
 rmse_proposed_oe_um";
 
 impl Row {
@@ -216,11 +222,13 @@ impl Row {
         let v = [self.rms_extended_um, self.rms_enhanced_um, self.rmse_uf_um, self.rmse_proposed_um];
         let w =
             [self.rms_extended_oe_um, self.rms_enhanced_oe_um, self.rmse_uf_oe_um, self.rmse_proposed_oe_um];
+        let peers = [self.rmse_open_um, self.rmse_pi_um, self.rmse_orc_um];
         let f = |x: f64| if x.is_finite() { format!("{x:.6}") } else { "nan".into() };
         format!(
-            "{},{},{},{},{},{:.6},{}",
+            "{},{},{},{},{},{},{:.6},{}",
             self.freq_hz,
             v.map(f).join(","),
+            peers.map(f).join(","),
             self.harmonic_order,
             self.cancel_order,
             self.cancel_order_oe,
@@ -471,6 +479,16 @@ pub fn run_frequency(
     let h_oe = responses(base_oe, n_oe)?;
     let prop_oe = if n_oe == 0 { uf_oe.clone() } else { tracking(base_oe, &h_oe, 4)? };
     samples += 2 * n + usize::from(n_rls > 0) * n + usize::from(n_oe > 0) * n;
+    // The peers, tuned from the output-error extended model by the core's rule.
+    let peer = |p: Peer, run: u64| -> Result<Trace, SweepError> {
+        let mut b = plant(run)?;
+        let mut step = |uk: f64| b.step(uk).unwrap_or(f64::NAN);
+        experiment::track_peer(&mut step, &ext_oe, p, alpha, f, ts, n, set).map_err(core)
+    };
+    let open = peer(Peer::OpenLoop, 6)?;
+    let pi = peer(Peer::Pi, 7)?;
+    let orc = peer(Peer::Orc, 8)?;
+    samples += 3 * n;
 
     let row = Row {
         freq_hz: f,
@@ -486,6 +504,9 @@ pub fn run_frequency(
         rms_enhanced_oe_um: rms_enh_oe,
         rmse_uf_oe_um: finite(uf_oe.rmse_after(settle)),
         rmse_proposed_oe_um: finite(prop_oe.rmse_after(settle)),
+        rmse_open_um: finite(open.rmse_after(settle)),
+        rmse_pi_um: finite(pi.rmse_after(settle)),
+        rmse_orc_um: finite(orc.rmse_after(settle)),
     };
     let traces = keep_traces.then(|| Traces {
         freq_hz: f,
