@@ -5,6 +5,7 @@
 use clap::{Parser, Subcommand};
 use std::process::ExitCode;
 
+mod cmd_simulate;
 mod cmd_sweep;
 
 #[derive(Parser)]
@@ -23,12 +24,16 @@ enum Command {
     /// Repeat the paper's identification and compensation experiments over a frequency range
     /// on the virtual bimorph (Figs. 10 and 16).
     Sweep(cmd_sweep::SweepArgs),
+    /// Run the virtual bimorph on a drive (a sine, or a column of a CSV file) and write the
+    /// record (t, u, y).
+    Simulate(cmd_simulate::SimulateArgs),
 }
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Sweep(a) => cmd_sweep::run(a),
+        Command::Simulate(a) => cmd_simulate::run(a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
