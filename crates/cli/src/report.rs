@@ -72,8 +72,8 @@ fn col(result: &SweepResult, f: impl Fn(&crate::sweep::Row) -> f64) -> Vec<f64> 
 pub fn modelling_error(r: &SweepResult) -> Chart {
     let x = col(r, |w| w.freq_hz);
     Chart::new("Modelling error (free run, held-out half)", "drive frequency (Hz)", "RMS error (µm)")
-        .with(Series::line("extended, output error", x.clone(), col(r, |w| w.rms_extended_oe_um), 0).points())
-        .with(Series::line("enhanced, output error", x.clone(), col(r, |w| w.rms_enhanced_oe_um), 1).points())
+        .with(Series::line("extended, OE fit", x.clone(), col(r, |w| w.rms_extended_oe_um), 0).points())
+        .with(Series::line("enhanced, OE fit", x.clone(), col(r, |w| w.rms_enhanced_oe_um), 1).points())
         .with(Series::line("extended, paper RLS", x.clone(), col(r, |w| w.rms_extended_um), 2).dashed())
         .with(Series::line("enhanced, paper RLS", x, col(r, |w| w.rms_enhanced_um), 3).dashed())
         .log_y()
@@ -83,31 +83,13 @@ pub fn modelling_error(r: &SweepResult) -> Chart {
 pub fn compensation(r: &SweepResult) -> Chart {
     let x = col(r, |w| w.freq_hz);
     Chart::new("Tracking RMSE after settling", "drive frequency (Hz)", "RMSE (µm)")
-        .with(
-            Series::line(
-                "u_f alone (eqs. 16/17), output-error model",
-                x.clone(),
-                col(r, |w| w.rmse_uf_oe_um),
-                0,
-            )
-            .points(),
-        )
-        .with(
-            Series::line(
-                "proposed (eqs. 20/21), output-error model",
-                x.clone(),
-                col(r, |w| w.rmse_proposed_oe_um),
-                1,
-            )
-            .points(),
-        )
-        .with(Series::line("u_f alone, paper-RLS model", x.clone(), col(r, |w| w.rmse_uf_um), 2).dashed())
-        .with(
-            Series::line("proposed, paper-RLS model", x.clone(), col(r, |w| w.rmse_proposed_um), 3).dashed(),
-        )
-        .with(Series::line("open loop d/G0", x.clone(), col(r, |w| w.rmse_open_um), 4))
-        .with(Series::line("PI feedback", x.clone(), col(r, |w| w.rmse_pi_um), 5))
-        .with(Series::line("ORC (Li et al.) on the PI", x, col(r, |w| w.rmse_orc_um), 6).points())
+        .with(Series::line("u_f alone, OE model", x.clone(), col(r, |w| w.rmse_uf_oe_um), 0).points())
+        .with(Series::line("proposed, OE model", x.clone(), col(r, |w| w.rmse_proposed_oe_um), 1).points())
+        .with(Series::line("u_f alone, paper RLS", x.clone(), col(r, |w| w.rmse_uf_um), 2).dashed())
+        .with(Series::line("proposed, paper RLS", x.clone(), col(r, |w| w.rmse_proposed_um), 3).dashed())
+        .with(Series::line("open loop", x.clone(), col(r, |w| w.rmse_open_um), 4))
+        .with(Series::line("PI", x.clone(), col(r, |w| w.rmse_pi_um), 5))
+        .with(Series::line("ORC on the PI", x, col(r, |w| w.rmse_orc_um), 6).points())
         .log_y()
 }
 
