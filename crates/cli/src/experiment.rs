@@ -225,23 +225,12 @@ pub fn track(
             uc_max: set.uc_max,
         })?;
         let envelope = fade_in(ts);
-        // The reference, and for the model's input delay τ the reference τ samples ahead.
+        // For the model's input delay τ, the reference τ samples ahead.
         let w = std::f64::consts::TAU * freq_hz * ts;
-        let mut t = Trace { d: Vec::with_capacity(n), u: Vec::with_capacity(n), y: Vec::with_capacity(n) };
-        let mut y_prev = None;
-        for k in 0..n {
-            let kf = k as f64;
-            let (s_now, _) = sin_cos::<f64>(drive.phase_at(k as u64));
-            let d = alpha * envelope(kf) * s_now;
-            let d_ahead = alpha * envelope(kf + model.delay) * (w * (kf + model.delay)).sin();
-            let out = comp.step_previewed(d, d_ahead, y_prev)?;
-            let y = plant(out.u);
-            y_prev = Some(y);
-            t.d.push(d);
-            t.u.push(out.u);
-            t.y.push(y);
-        }
-        Ok(t)
+        closed_loop(plant, drive, alpha, ts, n, |k, d, y_prev| {
+            let d_ahead = alpha * envelope(k + model.delay) * (w * (k + model.delay)).sin();
+            Ok(comp.step_previewed(d, d_ahead, y_prev)?.u)
+        })
     }
     match harmonics.len() {
         0 => run::<0>(plant, model, harmonics, alpha, freq_hz, ts, n, set),
@@ -286,18 +275,30 @@ pub fn track_peer(
         Peer::Pi => Box::new(PiController::new(tuning.pi.pi)?),
         Peer::Orc => Box::new(OrcController::<f64, ORC_CAPACITY>::new(tuning.pi.pi, tuning.orc.orc)?),
     };
+    closed_loop(plant, drive, alpha, ts, n, |_, d, y_prev| Ok(ctrl.step(d, y_prev)?.u))
+}
+
+/// Runs `n` samples of a controller on `plant` with the reference
+/// `d[k] = alpha·fade(k)·sin(θ_k)`: `control(k, d[k], y[k-1])` returns `u[k]`.
+fn closed_loop(
+    plant: &mut dyn FnMut(f64) -> f64,
+    drive: Oscillator,
+    alpha: f64,
+    ts: f64,
+    n: usize,
+    mut control: impl FnMut(f64, f64, Option<f64>) -> Result<f64, boucwen_core::Error>,
+) -> Result<Trace, boucwen_core::Error> {
     let envelope = fade_in(ts);
     let mut t = Trace { d: Vec::with_capacity(n), u: Vec::with_capacity(n), y: Vec::with_capacity(n) };
     let mut y_prev = None;
     for k in 0..n {
-        let kf = k as f64;
         let (s_now, _) = sin_cos::<f64>(drive.phase_at(k as u64));
-        let d = alpha * envelope(kf) * s_now;
-        let out = ctrl.step(d, y_prev)?;
-        let y = plant(out.u);
+        let d = alpha * envelope(k as f64) * s_now;
+        let u = control(k as f64, d, y_prev)?;
+        let y = plant(u);
         y_prev = Some(y);
         t.d.push(d);
-        t.u.push(out.u);
+        t.u.push(u);
         t.y.push(y);
     }
     Ok(t)
