@@ -180,6 +180,136 @@ impl Diagnosis {
     }
 }
 
+impl Diagnosis {
+    /// The JSON object of `boucwen diagnose --json`: `drive_hz`, `baseline {model, rms_um}`,
+    /// `findings [{kind, order (harmonics only), freq_hz, residual_share, cause, kept,
+    /// term_rms_um}]` (most important first; kept terms before structure no term removed),
+    /// `extended {model, rms_um}`, `gain_pct`, and the residual decomposition.
+    pub fn json(&self) -> serde_json::Value {
+        use serde_json::json;
+        let findings: Vec<serde_json::Value> = self
+            .findings
+            .iter()
+            .map(|f| {
+                let mut o = json!({
+                    "kind": f.kind.as_str(),
+                    "freq_hz": f.freq_hz,
+                    "residual_share": f.residual_share,
+                    "cause": f.cause,
+                    "kept": f.kept,
+                    "term_rms_um": f.term_rms_um,
+                });
+                if let Some(n) = f.order {
+                    o["order"] = json!(n);
+                }
+                o
+            })
+            .collect();
+        let r = &self.residual;
+        json!({
+            "drive_hz": self.drive_hz,
+            "baseline": {"model": self.baseline.name(), "rms_um": self.baseline_rms_um},
+            "findings": findings,
+            "extended": {"model": self.model.name(), "rms_um": self.model_rms_um},
+            "gain_pct": self.gain_pct(),
+            "residual": {
+                "rms_um": r.rms_um,
+                "periodic_rms_um": r.periodic_rms_um(),
+                "trend_rms_um": r.trend_rms_um,
+                "noise_rms_um": r.noise_rms_um,
+                "harmonics_um": r.harmonics.iter().map(|h| h.amp).collect::<Vec<_>>(),
+            },
+            "resonance_hz": self.resonance_hz,
+            "fit_samples": self.split,
+            "held_out_samples": self.baseline_sim.len() - self.split,
+        })
+    }
+
+    /// The terminal report: the baseline and what it gets wrong, the findings with their
+    /// evidence, and the extended model's gain.
+    pub fn summary(&self, source: &str) -> String {
+        use std::fmt::Write;
+        let mut s = String::new();
+        let n = self.baseline_sim.len();
+        let r = &self.residual;
+        let _ = writeln!(
+            s,
+            "{source}: drive {:.3} Hz, {n} samples at {} s; fitted on the first {} s, tested on the last {} s",
+            self.drive_hz,
+            self.ts,
+            fmt_s(self.split as f64 * self.ts),
+            fmt_s((n - self.split) as f64 * self.ts),
+        );
+        let _ = writeln!(
+            s,
+            "output fundamental {:.3} µm; baseline {} (free run): held-out RMS {:.4} µm{}",
+            self.output_amplitude_um,
+            self.baseline.name(),
+            self.baseline_rms_um,
+            self.resonance_hz.map_or(String::new(), |f| format!(", structure resonance {f:.1} Hz")),
+        );
+        let _ = writeln!(s, "\nwhat the baseline gets wrong (held-out residual, RMS {:.4} µm):", r.rms_um);
+        let p = (r.rms_um * r.rms_um).max(1e-300);
+        let pct = |x: f64| 100.0 * x * x / p;
+        let _ = writeln!(
+            s,
+            "  periodic with the drive {:.4} µm ({:.0}% of the power), slow trend {:.4} µm ({:.0}%), noise {:.4} µm ({:.0}%)",
+            r.periodic_rms_um(),
+            pct(r.periodic_rms_um()),
+            r.trend_rms_um,
+            pct(r.trend_rms_um),
+            r.noise_rms_um,
+            pct(r.noise_rms_um),
+        );
+        let mut top: Vec<(usize, &Tone)> = r.harmonics.iter().enumerate().collect();
+        top.sort_by(|a, b| b.1.amp.total_cmp(&a.1.amp));
+        for (i, h) in top.iter().take(4) {
+            let _ = writeln!(
+                s,
+                "  harmonic {:>2} ({:6.1} Hz): {:.4} µm peak, {:4.1}% of the residual power",
+                i + 1,
+                h.freq_hz,
+                h.amp,
+                100.0 * h.amp * h.amp / 2.0 / p
+            );
+        }
+        if self.findings.is_empty() {
+            let _ = writeln!(
+                s,
+                "\nfindings: none; no structure in the residual is worth a term (noise {:.4} µm of {:.4} µm)",
+                r.noise_rms_um, r.rms_um
+            );
+        } else {
+            let _ = writeln!(s, "\nfindings (most important first):");
+            for (i, f) in self.findings.iter().enumerate() {
+                let _ = writeln!(s, "  {}. {}", i + 1, f.cause);
+            }
+        }
+        let _ = writeln!(
+            s,
+            "\nextended model: {} (free run): held-out RMS {:.4} µm, {:.4} µm before: {:.1}% lower{}",
+            self.model.name(),
+            self.model_rms_um,
+            self.baseline_rms_um,
+            self.gain_pct(),
+            if self.findings.iter().any(|f| f.kept) { "" } else { " (no term kept: the baseline stays)" }
+        );
+        s
+    }
+}
+
+fn fmt_s(x: f64) -> String {
+    let s = format!("{x:.3}");
+    s.trim_end_matches('0').trim_end_matches('.').to_string()
+}
+
+impl Residual {
+    /// RMS of the part periodic with the drive (all harmonics measured).
+    pub fn periodic_rms_um(&self) -> f64 {
+        (self.harmonics.iter().map(|h| h.amp * h.amp / 2.0).sum::<f64>()).sqrt()
+    }
+}
+
 /// Why a diagnosis could not be made.
 #[derive(Debug)]
 pub enum DiagnoseError {
@@ -203,6 +333,10 @@ pub enum DiagnoseError {
     /// The fit failed.
     Fit(FitError),
 }
+
+/// Fewest samples of a record to diagnose or identify: the fit and the held-out test each
+/// need some hundreds.
+pub const MIN_SAMPLES: usize = 400;
 
 /// Fewest drive periods the held-out half must hold.
 pub const MIN_PERIODS: f64 = 4.0;
@@ -450,9 +584,10 @@ pub fn diagnose(u: &[f64], y: &[f64], ts: f64, th: &Thresholds) -> Result<Diagno
     // Importance: what each term carries in the final model.
     let mut findings: Vec<Finding> = vec![];
     let mut prev_rms = baseline_rms_um;
-    for &(c, rms, _) in &kept {
+    for (i, &(c, rms, _)) in kept.iter().enumerate() {
         let term = term_rms(&model, &c, u, ts, split)?;
         let explained = (prev_rms * prev_rms - rms * rms) / (baseline_rms_um * baseline_rms_um).max(1e-300);
+        let step = Step { before_um: prev_rms, after_um: rms, first: i == 0 };
         prev_rms = rms;
         findings.push(Finding {
             kind: c.kind,
@@ -460,7 +595,7 @@ pub fn diagnose(u: &[f64], y: &[f64], ts: f64, th: &Thresholds) -> Result<Diagno
             freq_hz: c.freq_hz,
             residual_share: explained.clamp(0.0, 1.0),
             amplitude_um: c.amp,
-            cause: explain(&c, explained, term, output_amplitude_um, &[final_res, res_hz], &residual),
+            cause: explain(&c, step, &out_harmonics, output_amplitude_um, &[final_res, res_hz], &residual),
             rms_with_term_um: rms,
             term_rms_um: term,
             output_rel: out_harmonics
@@ -470,6 +605,7 @@ pub fn diagnose(u: &[f64], y: &[f64], ts: f64, th: &Thresholds) -> Result<Diagno
         });
     }
     findings.sort_by(|a, b| b.term_rms_um.total_cmp(&a.term_rms_um));
+    findings.extend(unexplained(&model_residual, &kept, &out_harmonics, output_amplitude_um, th));
     Ok(Diagnosis {
         drive_hz,
         ts,
@@ -488,6 +624,78 @@ pub fn diagnose(u: &[f64], y: &[f64], ts: f64, th: &Thresholds) -> Result<Diagno
         output_amplitude_um,
     })
 }
+
+/// The structure the extended model still misses: a harmonic `2..=`[`MAX_TERM_ORDER`] (not
+/// already a term) or the trend holding at least [`UNEXPLAINED_SHARE`] of the extended
+/// model's held-out residual power and carrying at least `min_term_rel` of the output's
+/// fundamental RMS. No term could remove it (it was tried, or it was not a candidate).
+fn unexplained(
+    r: &Residual,
+    kept: &[(Candidate, f64, f64)],
+    out: &[Tone],
+    out_amp: f64,
+    th: &Thresholds,
+) -> Vec<Finding> {
+    let power = (r.rms_um * r.rms_um).max(1e-300);
+    let floor = th.min_term_rel * out_amp / std::f64::consts::SQRT_2;
+    let is_kept = |order: Option<u32>| kept.iter().any(|(c, ..)| c.order == order);
+    let mut found = vec![];
+    for (i, h) in r.harmonics.iter().enumerate().skip(1).take(MAX_TERM_ORDER as usize - 1) {
+        let order = (i + 1) as u32;
+        let (rms, share) = (h.amp / std::f64::consts::SQRT_2, h.amp * h.amp / 2.0 / power);
+        if is_kept(Some(order)) || share < UNEXPLAINED_SHARE || rms < floor {
+            continue;
+        }
+        let kind = if order % 2 == 1 { Kind::OddHarmonic } else { Kind::EvenHarmonic };
+        let output_rel = out.get(i).map_or(0.0, |t| t.amp / out_amp.max(1e-300));
+        found.push(Finding {
+            kind,
+            order: Some(order),
+            freq_hz: h.freq_hz,
+            residual_share: share,
+            amplitude_um: h.amp,
+            output_rel,
+            cause: format!(
+                "unexplained {} harmonic at {:.1} Hz: {:.3} µm, {:.0}% of the extended model's residual power; no \
+                 term removed it by enough to keep",
+                ordinal(order),
+                h.freq_hz,
+                h.amp,
+                100.0 * share
+            ),
+            kept: false,
+            rms_with_term_um: f64::NAN,
+            term_rms_um: rms,
+        });
+    }
+    let share = r.trend_rms_um.powi(2) / power;
+    if !is_kept(None) && share >= UNEXPLAINED_SHARE && r.trend_rms_um >= floor {
+        found.push(Finding {
+            kind: Kind::Drift,
+            order: None,
+            freq_hz: 0.0,
+            residual_share: share,
+            amplitude_um: r.trend_rms_um,
+            output_rel: 0.0,
+            cause: format!(
+                "unexplained slow trend: {:.3} µm RMS (slope {:.4} µm/s), {:.0}% of the extended model's residual \
+                 power; a drift line did not remove it by enough to keep",
+                r.trend_rms_um,
+                r.trend_slope_um_per_s,
+                100.0 * share
+            ),
+            kept: false,
+            rms_with_term_um: f64::NAN,
+            term_rms_um: r.trend_rms_um,
+        });
+    }
+    found.sort_by(|a, b| b.term_rms_um.total_cmp(&a.term_rms_um));
+    found
+}
+
+/// Smallest share of the extended model's residual power for structure no term removed to
+/// be reported (see [`Finding::kept`]).
+pub const UNEXPLAINED_SHARE: f64 = 0.25;
 
 /// The terms to try: every harmonic `2..=`[`MAX_TERM_ORDER`] below Nyquist whose RMS in the
 /// output or in the residual reaches `floor` (µm), and the drift if the trend's RMS does.
@@ -566,34 +774,63 @@ fn with_term(model: &HostModel, c: &Candidate, ts: f64) -> Option<ModelSpec> {
     Some(spec)
 }
 
+/// A term's step in the forward selection: the held-out RMS before and after it, and whether
+/// it was added to the baseline itself.
+#[derive(Clone, Copy)]
+struct Step {
+    before_um: f64,
+    after_um: f64,
+    first: bool,
+}
+
+impl Step {
+    fn describe(&self, term: &str) -> String {
+        let pct = 100.0 * (1.0 - self.after_um / self.before_um.max(1e-300));
+        let to = if self.first { "the baseline" } else { "the model with the terms above" };
+        format!(
+            "{term} added to {to} lowers the held-out RMS from {:.4} to {:.4} µm ({pct:.0}%)",
+            self.before_um, self.after_um
+        )
+    }
+}
+
 fn explain(
     c: &Candidate,
-    explained: f64,
-    term: f64,
+    step: Step,
+    out: &[Tone],
     out_amp: f64,
     resonances: &[Option<f64>],
     residual: &Residual,
 ) -> String {
-    let _ = term;
-    let pct = 100.0 * explained;
     let share = 100.0 * c.share;
-    let rel = if out_amp > 0.0 { 100.0 * c.amp / out_amp } else { 0.0 };
     let f = c.freq_hz;
     let near = resonances.iter().flatten().copied().find(|r| (r - f).abs() <= 0.1 * f.max(*r));
+    let harmonic = |n: u32| -> String {
+        let in_out = out.get(n as usize - 1).map_or(0.0, |t| t.amp);
+        let rel = if out_amp > 0.0 { 100.0 * in_out / out_amp } else { 0.0 };
+        let mut s = format!(
+            "the output's {} harmonic at {f:.1} Hz is {in_out:.3} µm ({rel:.1}% of the fundamental); {}",
+            ordinal(n),
+            step.describe(&format!("a {} harmonic branch", ordinal(n)))
+        );
+        if c.share >= UNEXPLAINED_SHARE {
+            s.push_str(&format!(" (in the baseline's residual the harmonic holds {share:.0}% of the power)"));
+        } else if step.first {
+            s.push_str(&format!(
+                " (the baseline imitates the harmonic, {:.3} µm left, {share:.0}% of its residual power, by bending \
+                 its structure, and pays at other harmonics)",
+                c.amp
+            ));
+        }
+        s
+    };
     match c.kind {
         Kind::OddHarmonic => {
             let n = c.order.unwrap_or(0);
-            let mut s = format!(
-                "odd harmonic oscillation: a {} harmonic branch at {f:.1} Hz removes {pct:.0}% of the residual power \
-                 (the {} harmonic is {:.3} µm, {rel:.2}% of the output's fundamental, and {share:.0}% of the \
-                 baseline's residual power)",
-                ordinal(n),
-                ordinal(n),
-                c.amp
-            );
+            let mut s = format!("odd harmonic oscillation: {}", harmonic(n));
             match near {
                 Some(r) => s.push_str(&format!(
-                    "; the fitted structure has a resonance near {r:.0} Hz, which amplifies the {} harmonic of a \
+                    "; the record shows a resonance near {r:.0} Hz, which amplifies the {} harmonic of a \
                      nonlinearity the Bouc–Wen loop does not hold (e.g. stiffening of the bending)",
                     ordinal(n)
                 )),
@@ -604,13 +841,9 @@ fn explain(
         Kind::EvenHarmonic => {
             let n = c.order.unwrap_or(0);
             let mut s = format!(
-                "even harmonic: a {} harmonic branch at {f:.1} Hz removes {pct:.0}% of the residual power \
-                 (the {} harmonic is {:.3} µm, {rel:.2}% of the output's fundamental, and {share:.0}% of the \
-                 baseline's residual power); an even harmonic needs an asymmetry the model's loop lacks \
-                 (an asymmetric bimorph's stiffness, an off-centre operating point)",
-                ordinal(n),
-                ordinal(n),
-                c.amp
+                "even harmonic: {}; an even harmonic needs an asymmetry the model's loop lacks (an asymmetric \
+                 bimorph's stiffness, an off-centre operating point)",
+                harmonic(n)
             );
             if let Some(r) = near {
                 s.push_str(&format!(", amplified by the resonance near {r:.0} Hz"));
@@ -618,9 +851,12 @@ fn explain(
             s
         }
         Kind::Drift => format!(
-            "drift: a drift line removes {pct:.0}% of the residual power; a slow trend not locked to the drive \
-             holds {share:.0}% of it ({:.3} µm RMS, mean {:.3} µm, slope {:.4} µm/s)",
-            residual.trend_rms_um, residual.trend_mean_um, residual.trend_slope_um_per_s
+            "drift: a slow trend not locked to the drive holds {share:.0}% of the baseline's residual power ({:.3} µm \
+             RMS, mean {:.3} µm, slope {:.4} µm/s); {}",
+            residual.trend_rms_um,
+            residual.trend_mean_um,
+            residual.trend_slope_um_per_s,
+            step.describe("a drift line")
         ),
     }
 }

@@ -38,7 +38,7 @@
 //! centred on the off-centre operating point, else the odd powers would force even
 //! harmonics too); even `n` are an asymmetric bimorph. With damping `ζ` and the resonance on
 //! `n·f`, the `n`th harmonic of the deflection relative to the fundamental is about
-//! `r = |κ|/(2ζ·X)`; [`Case::generate`] draws `r` from 4 % to 20 % and sets `κ` from it.
+//! `r = |κ|/(2ζ·X)`; [`Case::generate`] draws `r` from 6 % to 25 % and sets `κ` from it.
 //! The response to the big `n`th harmonic adds smaller harmonics of second order.
 
 use crate::analysis;
@@ -156,9 +156,9 @@ pub const DRIVE_RANGE_HZ: (f64, f64) = (5.0, 60.0);
 /// Drive amplitudes drawn (V).
 pub const AMPLITUDE_RANGE_V: (f64, f64) = (0.6, 1.4);
 /// Damping ratios of the first mode drawn (log-uniform).
-pub const DAMPING_RANGE: (f64, f64) = (0.008, 0.025);
+pub const DAMPING_RANGE: (f64, f64) = (0.02, 0.06);
 /// Relative amplitudes `r` of a hidden harmonic drawn (log-uniform).
-pub const HARMONIC_RANGE: (f64, f64) = (0.04, 0.2);
+pub const HARMONIC_RANGE: (f64, f64) = (0.06, 0.25);
 /// Record length (s).
 pub const SECONDS: f64 = 10.0;
 
@@ -175,14 +175,7 @@ impl Case {
         let mut d = Draw(seed ^ class.wrapping_mul(0x5EED_0F_B0C5));
         let mut s = Scenario::default().with_seed(seed & (i64::MAX as u64)).without_drift();
         let amplitude_v = d.uniform(AMPLITUDE_RANGE_V.0, AMPLITUDE_RANGE_V.1);
-        let zr: (f64, f64) = std::env::var("ZR")
-            .ok()
-            .map(|v| {
-                let p: Vec<f64> = v.split(',').map(|x| x.parse().unwrap()).collect();
-                (p[0], p[1])
-            })
-            .unwrap_or((0.02, 0.06));
-        let zeta = d.log_uniform(zr.0, zr.1);
+        let zeta = d.log_uniform(DAMPING_RANGE.0, DAMPING_RANGE.1);
         let (f_r, drive_hz) = match effect {
             Effect::OddHarmonic(n) | Effect::EvenHarmonic(n) => {
                 let n = f64::from(n);
@@ -211,14 +204,7 @@ impl Case {
         s.structure.modes[1].freq_hz = (6.27 * f_r).min(1200.0);
         let mut target_rel = 0.0;
         if let Effect::OddHarmonic(n) | Effect::EvenHarmonic(n) = effect {
-            let hr: (f64, f64) = std::env::var("HR")
-                .ok()
-                .map(|v| {
-                    let p: Vec<f64> = v.split(',').map(|x| x.parse().unwrap()).collect();
-                    (p[0], p[1])
-                })
-                .unwrap_or((0.06, 0.25));
-            target_rel = d.log_uniform(hr.0, hr.1);
+            target_rel = d.log_uniform(HARMONIC_RANGE.0, HARMONIC_RANGE.1);
             let (q0, amp) = operating_point(&s, drive_hz, amplitude_v)?;
             let q_ref = s.structure.q_ref_um;
             let (x0, x) = (q0 / q_ref, amp / q_ref);

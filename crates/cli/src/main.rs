@@ -5,6 +5,8 @@
 use clap::{Parser, Subcommand};
 use std::process::ExitCode;
 
+mod cmd_diagnose;
+mod cmd_identify;
 mod cmd_simulate;
 mod cmd_sweep;
 
@@ -27,6 +29,12 @@ enum Command {
     /// Run the virtual bimorph on a drive (a sine, or a column of a CSV file) and write the
     /// record (t, u, y).
     Simulate(cmd_simulate::SimulateArgs),
+    /// Fit a model to a record (t, u, y) and report its parameters and its free-run error on
+    /// the part held out.
+    Identify(cmd_identify::IdentifyArgs),
+    /// Show what the extended model gets wrong on a record, name the cause, extend the model
+    /// and measure the gain.
+    Diagnose(cmd_diagnose::DiagnoseArgs),
 }
 
 fn main() -> ExitCode {
@@ -34,6 +42,8 @@ fn main() -> ExitCode {
     let result = match cli.command {
         Command::Sweep(a) => cmd_sweep::run(a),
         Command::Simulate(a) => cmd_simulate::run(a),
+        Command::Identify(a) => cmd_identify::run(a),
+        Command::Diagnose(a) => cmd_diagnose::run(a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

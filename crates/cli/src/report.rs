@@ -1,7 +1,9 @@
-//! Files a sweep writes: `sweep.csv` and SVG figures in the manner of the paper's
-//! Figs. 6, 10, 11, 13, 16 and 17.
+//! Files the commands write: a sweep's `sweep.csv` and SVG figures in the manner of the
+//! paper's Figs. 6, 10, 11, 13, 16 and 17; a diagnosis' page (`index.html`, its JSON and SVG
+//! figures of the residual spectrum, the loops and the time series before and after).
 
 use crate::analysis;
+use crate::diagnose::Diagnosis;
 use crate::plot::{Chart, Series};
 use crate::sweep::{SweepResult, Traces};
 use boucwen_hal::record::{RecordError, write_atomic};
@@ -141,4 +143,126 @@ pub fn spectra(traces: &[Traces]) -> Chart {
     c.x_range = Some((0.0, 200.0));
     c.y_range = Some((1e-4, 100.0));
     c
+}
+
+/// Writes a diagnosis page into `dir`: `index.html` (the terminal report, the findings and
+/// the figures), `diagnosis.json` (as `--json`), `residual_spectrum.svg`, `loops.svg`,
+/// `time_series.svg` and `residual.svg`. `u`, `y` are the record diagnosed; `source` names
+/// it. Returns the files written.
+pub fn write_diagnosis(
+    d: &Diagnosis,
+    u: &[f64],
+    y: &[f64],
+    source: &str,
+    dir: &Path,
+) -> Result<Vec<PathBuf>, ReportError> {
+    create_dir(dir)?;
+    let mut written = vec![];
+    let mut put = |name: &str, text: String| -> Result<(), ReportError> {
+        let p = dir.join(name);
+        write_atomic(&p, text.as_bytes()).map_err(ReportError::Write)?;
+        written.push(p);
+        Ok(())
+    };
+    let figures = [
+        ("residual_spectrum.svg", residual_spectrum(d, y).to_svg()),
+        ("loops.svg", diagnosis_loops(d, u, y).to_svg()),
+        ("time_series.svg", diagnosis_time_series(d, y).to_svg()),
+        ("residual.svg", diagnosis_residual(d, y).to_svg()),
+    ];
+    let mut html = format!(
+        "<!doctype html>\n<html><head><meta charset=\"utf-8\"><title>boucwen diagnose: {0}</title>\
+         <style>body{{font-family:sans-serif;max-width:980px;margin:2em auto}}pre{{background:#f6f6f6;\
+         padding:1em;white-space:pre-wrap}}img{{max-width:100%}}</style></head><body>\n\
+         <h1>Diagnosis of {0}</h1>\n<pre>{1}</pre>\n",
+        html_escape(source),
+        html_escape(&d.summary(source))
+    );
+    for (name, svg) in figures {
+        html.push_str(&format!("<p><img src=\"{name}\" alt=\"{name}\"></p>\n"));
+        put(name, svg)?;
+    }
+    html.push_str("</body></html>\n");
+    put("diagnosis.json", format!("{:#}\n", d.json()))?;
+    put("index.html", html)?;
+    Ok(written)
+}
+
+fn html_escape(s: &str) -> String {
+    s.replace('&', "&amp;").replace('<', "&lt;").replace('>', "&gt;").replace('"', "&quot;")
+}
+
+fn held_out_error(y: &[f64], sim: &[f64], from: usize) -> Vec<f64> {
+    y[from..].iter().zip(&sim[from..]).map(|(a, b)| a - b).collect()
+}
+
+/// Spectrum of the held-out residual of the baseline and of the extended model.
+pub fn residual_spectrum(d: &Diagnosis, y: &[f64]) -> Chart {
+    let (f0, a0) = analysis::spectrum(&held_out_error(y, &d.baseline_sim, d.split), d.ts);
+    let (f1, a1) = analysis::spectrum(&held_out_error(y, &d.model_sim, d.split), d.ts);
+    let mut c = Chart::new(
+        format!("Residual spectrum (held-out), drive {:.2} Hz", d.drive_hz),
+        "frequency (Hz)",
+        "amplitude (µm)",
+    )
+    .with(Series::line(format!("baseline: {}", d.baseline.name()), f0, a0, 0))
+    .with(Series::line(format!("extended: {}", d.model.name()), f1, a1, 1))
+    .log_y();
+    let top = (12.0 * d.drive_hz).max(d.resonance_hz.unwrap_or(0.0) * 1.5).min(0.5 / d.ts);
+    c.x_range = Some((0.0, top));
+    c
+}
+
+/// Measured and model loops in the u–y plane over the last two held-out periods.
+pub fn diagnosis_loops(d: &Diagnosis, u: &[f64], y: &[f64]) -> Chart {
+    let r = last_periods(y.len(), d.drive_hz, d.ts, 2.0);
+    let uu = u[r.clone()].to_vec();
+    Chart::new(format!("Loops at {:.2} Hz (held-out data)", d.drive_hz), "u (V)", "y (µm)")
+        .with(Series::line("measured", uu.clone(), y[r.clone()].to_vec(), 7))
+        .with(
+            Series::line(
+                format!("baseline: {}", d.baseline.name()),
+                uu.clone(),
+                d.baseline_sim[r.clone()].to_vec(),
+                0,
+            )
+            .dashed(),
+        )
+        .with(Series::line(format!("extended: {}", d.model.name()), uu, d.model_sim[r].to_vec(), 1))
+}
+
+/// Measured output and both models' free runs over the last three held-out periods.
+pub fn diagnosis_time_series(d: &Diagnosis, y: &[f64]) -> Chart {
+    let r = last_periods(y.len(), d.drive_hz, d.ts, 3.0);
+    let t: Vec<f64> = r.clone().map(|k| k as f64 * d.ts).collect();
+    Chart::new("Output and free-run models (held-out data)", "t (s)", "y (µm)")
+        .with(Series::line("measured", t.clone(), y[r.clone()].to_vec(), 7))
+        .with(
+            Series::line(
+                format!("baseline: {}", d.baseline.name()),
+                t.clone(),
+                d.baseline_sim[r.clone()].to_vec(),
+                0,
+            )
+            .dashed(),
+        )
+        .with(Series::line(format!("extended: {}", d.model.name()), t, d.model_sim[r].to_vec(), 1))
+}
+
+/// The held-out residual in time, before (baseline) and after (extended model).
+pub fn diagnosis_residual(d: &Diagnosis, y: &[f64]) -> Chart {
+    let t: Vec<f64> = (d.split..y.len()).map(|k| k as f64 * d.ts).collect();
+    Chart::new("Held-out residual y − ŷ", "t (s)", "residual (µm)")
+        .with(Series::line(
+            format!("baseline: {}", d.baseline.name()),
+            t.clone(),
+            held_out_error(y, &d.baseline_sim, d.split),
+            0,
+        ))
+        .with(Series::line(
+            format!("extended: {}", d.model.name()),
+            t,
+            held_out_error(y, &d.model_sim, d.split),
+            1,
+        ))
 }
