@@ -1,7 +1,8 @@
 //! The share of right diagnoses over a randomized batch of records with hidden effects.
 //!
 //! Run with `cargo bench --bench diagnose_batch` (options after `--`: `--per-effect N`,
-//! default 40, and `--seed S`, default 1000, the first seed; `--verbose` prints every case).
+//! default 40, and `--seed S`, default 1000, the first seed; `--verbose` prints every case;
+//! `--dump DIR` writes every record there as `EFFECT-SEED.csv`, for `boucwen diagnose`).
 //! For every effect of [`EFFECTS`] it draws `N` cases ([`boucwen_cli::hidden::Case`],
 //! seeds `S..S+N`), records each on the virtual bimorph and diagnoses it with the default
 //! thresholds. A diagnosis is right when:
@@ -79,10 +80,11 @@ struct Args {
     per_effect: u64,
     seed: u64,
     verbose: bool,
+    dump: Option<std::path::PathBuf>,
 }
 
 fn args() -> Result<Args, String> {
-    let mut a = Args { per_effect: 40, seed: 1000, verbose: false };
+    let mut a = Args { per_effect: 40, seed: 1000, verbose: false, dump: None };
     let mut it = std::env::args().skip(1);
     while let Some(arg) = it.next() {
         let mut value = |name: &str| -> Result<u64, String> {
@@ -93,6 +95,7 @@ fn args() -> Result<Args, String> {
             "--per-effect" => a.per_effect = value("--per-effect")?,
             "--seed" => a.seed = value("--seed")?,
             "--verbose" => a.verbose = true,
+            "--dump" => a.dump = Some(it.next().ok_or("--dump needs a directory")?.into()),
             // cargo bench passes `--bench`; criterion-style filters are not used here.
             "--bench" => {}
             other => return Err(format!("unknown argument {other:?}")),
@@ -125,6 +128,11 @@ fn main() {
         .map(|&(effect, seed)| {
             let case = Case::generate(effect, seed).map_err(|e| format!("{} {seed}: {e}", effect.name()))?;
             let rec = case.record().map_err(|e| format!("{} {seed}: {e}", effect.name()))?;
+            if let Some(dir) = &a.dump {
+                let path = dir.join(format!("{}-{seed}.csv", effect.name()));
+                std::fs::create_dir_all(dir).map_err(|e| format!("{}: {e}", dir.display()))?;
+                rec.write(&path).map_err(|e| e.to_string())?;
+            }
             match diagnose::diagnose(&rec.u, &rec.y, rec.ts, &Thresholds::default()) {
                 Ok(d) => {
                     let (right, line) = judge(&case, &d);

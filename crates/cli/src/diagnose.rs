@@ -1,9 +1,12 @@
 //! `diagnose`: given a record of a sine drive, show what the baseline model gets wrong, name
 //! the cause, extend the model and measure the gain.
 //!
-//! 1. **Baseline.** The extended model is fitted (output error, [`crate::fit::fit_oe`]) on the
-//!    first half of the record and simulated in free run over the whole record; the second
-//!    half is held out. The fit criterion skips the start-up (a fifth of the half, at most
+//! 1. **Baseline.** The extended model is fitted (output error, [`crate::fit::fit_oe`]) on
+//!    the first half of the record and simulated in free run over the whole record; the
+//!    second half is held out. If a constant output offset lowers the held-out RMS by
+//!    [`Thresholds::min_gain`], the baseline carries it ("extended+offset"): a sensor's zero
+//!    is arbitrary, and the model's loop starts from `h = 0` wherever the actuator was. An
+//!    offset is not a finding; the model's name shows it. The fit criterion skips the start-up (a fifth of the half, at most
 //!    [`MAX_SKIP_S`]) and covers at most [`MAX_WINDOW_S`].
 //! 2. **What it gets wrong.** The held-out residual `r = y − ŷ` is split ([`decompose`]) into
 //!    the part periodic with the drive (harmonics `k·f`, measured over whole periods), a
@@ -18,16 +21,23 @@
 //! 4. **Extension.** Forward selection: every candidate's term (a harmonic branch of order
 //!    `n`, odd or even, or a drift line `c0 + c1·t`) is added to the current model and the
 //!    model refitted (a search over structures and loop shapes, and from the current model).
-//!    The term with the lowest held-out RMS wins; terms within [`TIE`] of it are a tie, won by
-//!    the one that carries most ([`Finding::term_rms_um`]). The winner is kept if it lowers
-//!    the held-out RMS by at least [`Thresholds::min_gain`] and carries at least
-//!    [`Thresholds::min_term_rel`] of the output's fundamental RMS (smaller structure is not
-//!    worth a term); then the search repeats with the rest.
-//! 5. **Findings.** The kept terms, by what they carry in the extended model (most first): an
-//!    odd harmonic `n ≥ 3` is an odd harmonic oscillation, an even one an asymmetry, the trend
-//!    a drift. Then the structure no term could remove: a harmonic or trend that still holds
-//!    at least a quarter of the extended model's residual power and [`Thresholds::min_term_rel`]
-//!    of the output, reported with `kept = false`.
+//!    A term qualifies if it lowers the held-out RMS by at least [`Thresholds::min_gain`]
+//!    and carries at least [`Thresholds::min_term_rel`] of the output's fundamental RMS
+//!    (smaller structure is not worth a term; a drift line, at most [`DRIFT_NOISE_FACTOR`]
+//!    times the residual's noise). Of the qualifying terms the one with the most
+//!    evidence in the record wins ([`Candidate::evidence_um`]: a harmonic's RMS in the output,
+//!    the trend's in the residual), not the one with the lowest RMS: the extended model can
+//!    imitate one resonant harmonic with its loop, and a branch at another order then
+//!    cancels what the bent loop does there, fitting as well while standing for a harmonic
+//!    the record hardly has. The search repeats with the rest. Before the first term is
+//!    kept, the baseline is refitted from the winner's structure (its term removed); if that
+//!    alone lowers the baseline's RMS by [`BASELINE_REFIT_GAIN`] the diagnosis restarts from
+//!    it (a term's fit may find the structure the baseline's fit missed).
+//! 5. **Findings.** The kept terms, in the order chosen: an odd harmonic `n ≥ 3` is an odd
+//!    harmonic oscillation, an even one an asymmetry, the trend a drift. Then the structure
+//!    no term could remove: a harmonic or trend that still holds at least a quarter of the
+//!    extended model's residual power and [`Thresholds::min_term_rel`] of the output,
+//!    reported with `kept = false`.
 //!
 //! The held-out half serves both to choose terms and to report the gain, so the gain of a
 //! chosen term is measured on the data that chose it (a validation, not a test, gain).
@@ -184,7 +194,8 @@ impl Diagnosis {
     /// The JSON object of `boucwen diagnose --json`: `drive_hz`, `baseline {model, rms_um}`,
     /// `findings [{kind, order (harmonics only), freq_hz, residual_share, cause, kept,
     /// term_rms_um}]` (most important first; kept terms before structure no term removed),
-    /// `extended {model, rms_um}`, `gain_pct`, and the residual decomposition.
+    /// `extended {model, rms_um}`, `gain_pct`, the residual decomposition and every term tried
+    /// (`trials [{round, kind, order, freq_hz, rms_um, term_rms_um}]`).
     pub fn json(&self) -> serde_json::Value {
         use serde_json::json;
         let findings: Vec<serde_json::Value> = self
@@ -219,6 +230,19 @@ impl Diagnosis {
                 "noise_rms_um": r.noise_rms_um,
                 "harmonics_um": r.harmonics.iter().map(|h| h.amp).collect::<Vec<_>>(),
             },
+            "trials": self.trials.iter().map(|t| {
+                let mut o = json!({
+                    "round": t.round,
+                    "kind": t.candidate.kind.as_str(),
+                    "freq_hz": t.candidate.freq_hz,
+                    "rms_um": t.rms_um,
+                    "term_rms_um": t.term_rms_um,
+                });
+                if let Some(n) = t.candidate.order {
+                    o["order"] = json!(n);
+                }
+                o
+            }).collect::<Vec<_>>(),
             "resonance_hz": self.resonance_hz,
             "fit_samples": self.split,
             "held_out_samples": self.baseline_sim.len() - self.split,
@@ -458,6 +482,12 @@ pub struct Candidate {
     pub share: f64,
     /// Its amplitude in the baseline's residual (µm; harmonic peak or trend RMS).
     pub amp: f64,
+    /// How much of the record it accounts for (µm RMS): a harmonic's RMS in the output, the
+    /// trend's RMS in the baseline's residual. What orders the terms that would be kept:
+    /// the extended model can imitate one harmonic with its own loop and then needs a branch
+    /// to cancel what its loop does elsewhere, a branch that carries much in the model but
+    /// stands for little in the record.
+    pub evidence_um: f64,
 }
 
 /// One term tried in one round of the forward selection.
@@ -473,12 +503,13 @@ pub struct Trial {
     pub term_rms_um: f64,
 }
 
+/// A drift line qualifies when it carries this many times the RMS of the baseline residual's
+/// noise, even if that is less than [`Thresholds::min_term_rel`] of the output: a trend does
+/// not grow with the drive, and a trend well above the noise is structure worth a term.
+pub const DRIFT_NOISE_FACTOR: f64 = 5.0;
+
 /// Levenberg–Marquardt starts of the fit of each term.
 pub const TERM_STARTS: usize = 5;
-/// Terms whose held-out RMS is within this fraction of the best one's are a tie, which the
-/// term that carries most wins: the record cannot tell them apart, and the term that
-/// explains more of it is the better account of what the baseline misses.
-pub const TIE: f64 = 0.1;
 
 /// Highest harmonic order tried as a term.
 pub const MAX_TERM_ORDER: u32 = 9;
@@ -509,6 +540,30 @@ pub const MAX_WINDOW_S: f64 = 2.5;
 
 /// Diagnoses a record: `u` (V), `y` (µm), sample interval `ts` (s).
 pub fn diagnose(u: &[f64], y: &[f64], ts: f64, th: &Thresholds) -> Result<Diagnosis, DiagnoseError> {
+    diagnose_from(u, y, ts, th, &[], 0)
+}
+
+/// Most times the baseline is refitted from a better structure a term's fit found.
+pub const MAX_BASELINE_REFITS: usize = 2;
+/// The baseline is refitted when the first round's winner, its term removed and refitted,
+/// lowers the baseline's held-out RMS by at least this fraction.
+pub const BASELINE_REFIT_GAIN: f64 = 0.05;
+
+/// [`diagnose`] with extra start models for the baseline; `depth` counts refits.
+///
+/// A term's fit searches structures again and may find one the baseline's fit missed (a
+/// local minimum). The first round's winner is then checked: with its term removed and the
+/// baseline refitted from it, if the baseline alone gains [`BASELINE_REFIT_GAIN`], the
+/// whole diagnosis restarts from that better baseline, so a term is credited only with
+/// what the baseline cannot do.
+fn diagnose_from(
+    u: &[f64],
+    y: &[f64],
+    ts: f64,
+    th: &Thresholds,
+    starts: &[HostModel],
+    depth: usize,
+) -> Result<Diagnosis, DiagnoseError> {
     let n = u.len().min(y.len());
     let (u, y) = (&u[..n], &y[..n]);
     let drive_hz = analysis::estimate_drive(u, ts).ok_or(DiagnoseError::NoDrive)?;
@@ -520,7 +575,9 @@ pub fn diagnose(u: &[f64], y: &[f64], ts: f64, th: &Thresholds) -> Result<Diagno
         return Err(DiagnoseError::DriveTooFast { drive_hz, nyquist_hz: 0.5 / ts });
     }
     let opt = OeOptions { lm_starts: TERM_STARTS, ..fit_options(split, ts) };
-    let baseline = fit::fit_oe(u, y, ts, split, &ModelSpec::extended(drive_hz), &[], &opt)?.model;
+    // The baseline carries an output offset: a sensor's zero is arbitrary.
+    let spec = ModelSpec { drift_degree: Some(0), ..ModelSpec::extended(drive_hz) };
+    let baseline = fit::fit_oe(u, y, ts, split, &spec, starts, &opt)?.model;
     let baseline_sim = baseline.simulate(u, ts)?;
     let held_out =
         |sim: &[f64]| -> Vec<f64> { y[split..].iter().zip(&sim[split..]).map(|(a, b)| a - b).collect() };
@@ -533,6 +590,12 @@ pub fn diagnose(u: &[f64], y: &[f64], ts: f64, th: &Thresholds) -> Result<Diagno
     let out_rms = output_amplitude_um / std::f64::consts::SQRT_2;
     let out_harmonics = analysis::harmonics(&y[split..], drive_hz, ts, MAX_TERM_ORDER as usize);
 
+    // What a term must carry: `min_term_rel` of the output, or for a drift, which does not
+    // scale with the drive, DRIFT_NOISE_FACTOR times the residual's noise if that is less.
+    let min_term = |c: &Candidate| {
+        let t = th.min_term_rel * out_rms;
+        if c.kind == Kind::Drift { t.min(DRIFT_NOISE_FACTOR * residual.noise_rms_um) } else { t }
+    };
     // Forward selection of terms.
     let mut remaining = candidates(&residual, &out_harmonics, drive_hz, ts, th.min_candidate_rel * out_rms);
     let mut model = baseline.clone();
@@ -564,15 +627,24 @@ pub fn diagnose(u: &[f64], y: &[f64], ts: f64, th: &Thresholds) -> Result<Diagno
             rms_um: *rms,
             term_rms_um: *term,
         }));
-        // The best; among those within TIE of it, the one whose term carries most.
-        let Some(best) = tried.iter().map(|t| t.2).min_by(f64::total_cmp) else { break };
-        let Some((i, m, rms, term)) =
-            tried.into_iter().filter(|t| t.2 <= best * (1.0 + TIE)).max_by(|a, b| a.3.total_cmp(&b.3))
+        // Of the terms that would be kept, the one with the most evidence in the record.
+        let Some((i, m, rms, term)) = tried
+            .into_iter()
+            .filter(|t| t.2 <= model_rms * (1.0 - th.min_gain) && t.3 >= min_term(&remaining[t.0]))
+            .max_by(|a, b| remaining[a.0].evidence_um.total_cmp(&remaining[b.0].evidence_um))
         else {
             break;
         };
-        if rms > model_rms * (1.0 - th.min_gain) || term < th.min_term_rel * out_rms {
-            break;
+        if round == 0 && depth < MAX_BASELINE_REFITS {
+            let stripped = without(&m, &remaining[i]);
+            let refit = fit::fit_oe(u, y, ts, split, &spec, &[stripped], &opt).map(|f| f.model);
+            if let Ok(b) = refit {
+                if fit::free_run_rms(&b, u, y, ts, split)
+                    .is_ok_and(|r| r < baseline_rms_um * (1.0 - BASELINE_REFIT_GAIN))
+                {
+                    return diagnose_from(u, y, ts, th, &[b], depth + 1);
+                }
+            }
         }
         kept.push((remaining.remove(i), rms, term));
         model = m;
@@ -604,7 +676,7 @@ pub fn diagnose(u: &[f64], y: &[f64], ts: f64, th: &Thresholds) -> Result<Diagno
             kept: true,
         });
     }
-    findings.sort_by(|a, b| b.term_rms_um.total_cmp(&a.term_rms_um));
+    // Kept terms were chosen by their evidence, most first.
     findings.extend(unexplained(&model_residual, &kept, &out_harmonics, output_amplitude_um, th));
     Ok(Diagnosis {
         drive_hz,
@@ -717,6 +789,7 @@ fn candidates(r: &Residual, out: &[Tone], drive_hz: f64, ts: f64, floor: f64) ->
                 freq_hz: h.freq_hz,
                 share: h.amp * h.amp / 2.0 / power,
                 amp: h.amp,
+                evidence_um: out.get(i).map_or(0.0, rms),
             }
         })
         .filter(|c| c.order.is_some_and(|o| o <= MAX_TERM_ORDER && o as f64 * drive_hz < 0.5 / ts))
@@ -728,6 +801,7 @@ fn candidates(r: &Residual, out: &[Tone], drive_hz: f64, ts: f64, floor: f64) ->
             freq_hz: 0.0,
             share: r.trend_rms_um.powi(2) / power,
             amp: r.trend_rms_um,
+            evidence_um: r.trend_rms_um,
         });
     }
     c
@@ -736,18 +810,24 @@ fn candidates(r: &Residual, out: &[Tone], drive_hz: f64, ts: f64, floor: f64) ->
 /// The held-out RMS (µm) of what the term of `c` carries in `model`: the change of its free
 /// run when the term is removed.
 fn term_rms(model: &HostModel, c: &Candidate, u: &[f64], ts: f64, split: usize) -> Result<f64, FitError> {
-    let mut without = model.clone();
-    match c.kind {
-        Kind::Drift => without.drift.clear(),
-        _ => without.branches.retain(|b| Some(b.order) != c.order),
-    }
     let a = model.simulate(u, ts)?;
-    let b = without.simulate(u, ts)?;
+    let b = without(model, c).simulate(u, ts)?;
     let d: Vec<f64> = a.iter().zip(&b).map(|(x, y)| x - y).collect();
     // A drift line's level is traded against the loop's offset: count its change from the
     // middle of the fitted half.
     let level = if c.kind == Kind::Drift { d[split / 2] } else { 0.0 };
     Ok(analysis::rms(&d[split..].iter().map(|v| v - level).collect::<Vec<_>>()))
+}
+
+/// `model` without the candidate's term.
+fn without(model: &HostModel, c: &Candidate) -> HostModel {
+    let mut m = model.clone();
+    match c.kind {
+        // The offset stays; the drift is the rest of the polynomial.
+        Kind::Drift => m.drift.truncate(1),
+        _ => m.branches.retain(|b| Some(b.order) != c.order),
+    }
+    m
 }
 
 /// The current model's spec with the candidate's term added (`None` if it cannot be).
@@ -758,7 +838,7 @@ fn with_term(model: &HostModel, c: &Candidate, ts: f64) -> Option<ModelSpec> {
         drift_degree: (!model.drift.is_empty()).then(|| model.drift.len() - 1),
     };
     match c.kind {
-        Kind::Drift if spec.drift_degree.is_none() => spec.drift_degree = Some(1),
+        Kind::Drift if spec.drift_degree.is_none_or(|d| d == 0) => spec.drift_degree = Some(1),
         Kind::OddHarmonic | Kind::EvenHarmonic => {
             let o = c.order?;
             if spec.harmonics.contains(&o)

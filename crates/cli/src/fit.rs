@@ -130,7 +130,8 @@ impl HostModel {
             + self.drift.len()
     }
 
-    /// A short name: "extended", "enhanced(3)", "extended+drift", ….
+    /// A short name: "extended", "enhanced(3)", "extended+offset" (a constant output
+    /// offset), "enhanced(3)+drift" (an offset and a trend), ….
     pub fn name(&self) -> String {
         let mut s = if self.branches.is_empty() {
             "extended".to_string()
@@ -138,7 +139,9 @@ impl HostModel {
             let orders: Vec<String> = self.branches.iter().map(|b| b.order.to_string()).collect();
             format!("enhanced({})", orders.join(","))
         };
-        if !self.drift.is_empty() {
+        if self.drift.len() == 1 {
+            s.push_str("+offset");
+        } else if self.drift.len() > 1 {
             s.push_str("+drift");
         }
         s
