@@ -508,6 +508,9 @@ pub struct Trial {
 /// not grow with the drive, and a trend well above the noise is structure worth a term.
 pub const DRIFT_NOISE_FACTOR: f64 = 5.0;
 
+/// A harmonic is "near" a fitted resonance within this fraction of the higher of the two.
+pub const NEAR_RESONANCE: f64 = 0.15;
+
 /// Levenberg–Marquardt starts of the fit of each term.
 pub const TERM_STARTS: usize = 5;
 
@@ -884,7 +887,9 @@ fn explain(
 ) -> String {
     let share = 100.0 * c.share;
     let f = c.freq_hz;
-    let near = resonances.iter().flatten().copied().find(|r| (r - f).abs() <= 0.1 * f.max(*r));
+    // A single-sine record places the structure's resonance only roughly (the fit bends it to
+    // imitate harmonics), hence a wide window.
+    let near = resonances.iter().flatten().copied().find(|r| (r - f).abs() <= NEAR_RESONANCE * f.max(*r));
     let harmonic = |n: u32| -> String {
         let in_out = out.get(n as usize - 1).map_or(0.0, |t| t.amp);
         let rel = if out_amp > 0.0 { 100.0 * in_out / out_amp } else { 0.0 };
@@ -910,8 +915,8 @@ fn explain(
             let mut s = format!("odd harmonic oscillation: {}", harmonic(n));
             match near {
                 Some(r) => s.push_str(&format!(
-                    "; the record shows a resonance near {r:.0} Hz, which amplifies the {} harmonic of a \
-                     nonlinearity the Bouc–Wen loop does not hold (e.g. stiffening of the bending)",
+                    "; the fitted structure has a resonance near {r:.0} Hz, which amplifies the {} harmonic of \
+                     a nonlinearity the Bouc–Wen loop does not hold (e.g. stiffening of the bending)",
                     ordinal(n)
                 )),
                 None => s.push_str("; a nonlinearity beyond the Bouc–Wen loop"),

@@ -1,0 +1,114 @@
+//! `diagnose` finds effects hidden in records of the virtual bimorph.
+//!
+//! Each record comes from a randomized, seeded scenario ([`boucwen_cli::hidden::Case`]) in
+//! which one effect is switched on (or none) without telling the diagnosis. The diagnosis
+//! must name the hidden effect first (kind, order, frequency within 2 Hz) and lower the
+//! held-out RMS by at least 50 %, and find nothing in the clean records.
+//!
+//! The seeds are the first ones of each effect (1 and 2, three for clean records); the
+//! share of right diagnoses over hundreds of seeds is measured by
+//! `cargo bench --bench diagnose_batch`, not here. Seed 3 of the hidden 3rd harmonic, for
+//! one, is a miss there: the extended model imitates that harmonic to within 1.3 times the
+//! noise floor, and no term can gain 50 % on it.
+
+use boucwen_cli::diagnose::{self, Diagnosis, Kind, Thresholds};
+use boucwen_cli::hidden::{Case, Effect};
+use boucwen_hal::record::Record;
+use boucwen_sim::{Bimorph, Scenario};
+
+fn diagnosed(effect: Effect, seed: u64) -> (Case, Diagnosis) {
+    let case = Case::generate(effect, seed).expect("case");
+    let rec = case.record().expect("record");
+    let d = diagnose::diagnose(&rec.u, &rec.y, rec.ts, &Thresholds::default()).expect("diagnosis");
+    (case, d)
+}
+
+fn describe(case: &Case, d: &Diagnosis) -> String {
+    format!(
+        "{} seed {}: drive {:.2} Hz, resonance {:.1} Hz; findings {:?}; {:.4} -> {:.4} µm",
+        case.effect.name(),
+        case.seed,
+        case.drive_hz,
+        case.resonance_hz,
+        d.findings.iter().map(|f| (f.kind, f.order, f.freq_hz, f.kept)).collect::<Vec<_>>(),
+        d.baseline_rms_um,
+        d.model_rms_um
+    )
+}
+
+/// The first finding names `kind` (and `order`) at `freq_hz` ± 2 Hz, its term is kept, and
+/// the extended model gains at least 50 %.
+fn assert_named(effect: Effect, seed: u64, kind: Kind, order: Option<u32>) {
+    let (case, d) = diagnosed(effect, seed);
+    let why = describe(&case, &d);
+    let f = d.findings.first().unwrap_or_else(|| panic!("nothing found: {why}"));
+    assert_eq!((f.kind, f.order), (kind, order), "{why}");
+    assert!(f.kept, "{why}");
+    let want_hz = order.map_or(0.0, |n| f64::from(n) * case.drive_hz);
+    assert!((f.freq_hz - want_hz).abs() <= 2.0, "{} Hz, want {want_hz} Hz: {why}", f.freq_hz);
+    assert!(d.gain_pct() >= 50.0, "gain {:.1}%: {why}", d.gain_pct());
+    // The extended model is the baseline with that term, and it was measured on the held-out half.
+    assert!(d.model_rms_um < 0.5 * d.baseline_rms_um, "{why}");
+    let name = d.model.name();
+    match kind {
+        Kind::Drift => assert!(name.ends_with("+drift"), "{name}"),
+        _ => assert!(d.model.branches.iter().any(|b| Some(b.order) == order), "{name}"),
+    }
+}
+
+#[test]
+fn a_hidden_odd_harmonic_of_order_3_5_or_7_is_named() {
+    for n in [3, 5, 7] {
+        for seed in [1, 2] {
+            assert_named(Effect::OddHarmonic(n), seed, Kind::OddHarmonic, Some(n));
+        }
+    }
+}
+
+#[test]
+fn a_hidden_even_harmonic_from_an_asymmetric_bimorph_is_named() {
+    for seed in [1, 2] {
+        assert_named(Effect::EvenHarmonic(2), seed, Kind::EvenHarmonic, Some(2));
+    }
+    assert_named(Effect::EvenHarmonic(4), 1, Kind::EvenHarmonic, Some(4));
+}
+
+#[test]
+fn hidden_drift_is_named() {
+    for seed in [1, 2] {
+        assert_named(Effect::Drift, seed, Kind::Drift, None);
+    }
+}
+
+#[test]
+fn clean_records_have_no_finding_and_keep_the_baseline() {
+    for seed in [1, 2, 3] {
+        let (case, d) = diagnosed(Effect::Clean, seed);
+        assert!(d.findings.is_empty(), "{}", describe(&case, &d));
+        assert_eq!(d.model, d.baseline);
+        assert_eq!(d.gain_pct(), 0.0);
+        // The residual is at the noise floor: 10 nm sensor noise and quantisation.
+        assert!(d.baseline_rms_um < 0.03, "{}", describe(&case, &d));
+    }
+}
+
+#[test]
+fn the_default_actuator_at_23_hz_shows_its_odd_harmonic_oscillation() {
+    // The paper's actuator at 23 Hz: the 3rd harmonic (69 Hz) near the 70 Hz resonance.
+    let s = Scenario::default();
+    let ts = s.sampling.ts_s;
+    let u: Vec<f64> = (0..10_000).map(|k| (std::f64::consts::TAU * 23.0 * k as f64 * ts).sin()).collect();
+    let y = Bimorph::new(&s).unwrap().run(&u).unwrap();
+    let rec = Record::new("default-23hz", 0.0, ts, u, y, None).unwrap();
+    let d = diagnose::diagnose(&rec.u, &rec.y, rec.ts, &Thresholds::default()).unwrap();
+    let f = &d.findings[0];
+    assert_eq!((f.kind, f.order), (Kind::OddHarmonic, Some(3)), "{}", d.summary("default"));
+    assert!((f.freq_hz - 69.0).abs() < 0.5);
+    assert!(f.cause.contains("resonance near"), "{}", f.cause);
+    assert!(d.gain_pct() >= 50.0, "{}", d.summary("default"));
+    // The JSON carries the same.
+    let j = d.json();
+    assert_eq!(j["findings"][0]["kind"], "odd_harmonic");
+    assert_eq!(j["findings"][0]["order"], 3);
+    assert_eq!(j["extended"]["model"], d.model.name());
+}
