@@ -6,6 +6,7 @@ use clap::{Parser, Subcommand};
 use std::process::ExitCode;
 
 mod cmd_diagnose;
+mod cmd_hil;
 mod cmd_identify;
 mod cmd_simulate;
 mod cmd_sweep;
@@ -35,6 +36,9 @@ enum Command {
     /// Show what the extended model gets wrong on a record, name the cause, extend the model
     /// and measure the gain.
     Diagnose(cmd_diagnose::DiagnoseArgs),
+    /// Hardware in the loop: drive the board on a serial device with the virtual bimorph as
+    /// its actuator; the board runs the compensator.
+    Hil(cmd_hil::HilArgs),
 }
 
 fn main() -> ExitCode {
@@ -44,6 +48,7 @@ fn main() -> ExitCode {
         Command::Simulate(a) => cmd_simulate::run(a),
         Command::Identify(a) => cmd_identify::run(a),
         Command::Diagnose(a) => cmd_diagnose::run(a),
+        Command::Hil(a) => cmd_hil::run(a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

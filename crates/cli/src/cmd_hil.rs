@@ -1,0 +1,158 @@
+//! `boucwen hil --port PATH`: hardware in the loop over a serial device.
+//!
+//! The board on `PATH` (the firmware, on a real board or in QEMU on a pseudo-terminal)
+//! runs the compensator; the host is its actuator: the virtual bimorph
+//! (`--scenario`, the paper's actuator by default). Before the run the host designs the
+//! compensator as the sweep does, on the virtual bimorph itself:
+//! 1. a record of the drive `sin(2π f t)` (`--amplitude` V, 6 s) is fitted by the
+//!    extended model (output error, an invertible loop; no input delay, the board's
+//!    compensator does not preview);
+//! 2. the reference amplitude α is eq. (25) on that record;
+//! 3. `u_f` alone is run in-process on the model's controller; the odd harmonic that stands
+//!    out in its tracking error is the one the board cancels, with the identified model's
+//!    response at `n·f` (none if no harmonic stands out).
+//!
+//! Then the board runs `--samples` samples ([`boucwen_hal::hil`]); the host prints what
+//! was exchanged, lost and corrupted, and the tracking RMSE beside the one the same
+//! controller reaches in-process without a link. Exits non-zero when a sample is not
+//! accounted for or a command differs from the host's shadow controller.
+
+use boucwen_cli::fit::{self, HostModel, ModelSpec, OeOptions};
+use boucwen_cli::{analysis, experiment, sweep};
+use boucwen_core::compensator::{HarmonicSpec, PhaseRule, Saturation};
+use boucwen_core::rls::RlsConfig;
+use boucwen_hal::hil::{self, HilOptions};
+use boucwen_hal::wire::message::{ControllerParams, ReferenceSpec};
+use boucwen_sim::{Bimorph, Scenario};
+use std::path::PathBuf;
+
+#[derive(clap::Args)]
+pub struct HilArgs {
+    /// The board's serial device (e.g. /dev/ttyUSB0, or QEMU's /dev/pts/N).
+    #[arg(long)]
+    port: String,
+    /// Line speed (ignored by pseudo-terminals).
+    #[arg(long, default_value_t = 460_800)]
+    baud: u32,
+    /// Samples to run.
+    #[arg(long, default_value_t = 5000)]
+    samples: u32,
+    /// Damage this fraction of the bytes in each direction (dropped or one bit flipped).
+    #[arg(long, value_name = "RATE")]
+    inject_faults: Option<f64>,
+    /// Seed of the fault injection.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Drive frequency f (Hz).
+    #[arg(long, default_value_t = 23.0)]
+    freq: f64,
+    /// Drive amplitude of the identification record (V).
+    #[arg(long, default_value_t = 1.0)]
+    amplitude: f64,
+    /// Scenario file of the virtual bimorph (TOML); the paper's actuator if omitted.
+    #[arg(long)]
+    scenario: Option<PathBuf>,
+    /// End with one JSON line: samples, samples_accounted, corrupted_frames, lost_frames, rmse_um.
+    #[arg(long)]
+    json: bool,
+}
+
+/// Seconds of the identification record.
+const IDENT_SECONDS: f64 = 6.0;
+
+pub fn run(a: HilArgs) -> Result<(), String> {
+    if a.samples < 1000 {
+        return Err(format!("--samples {}: at least 1000", a.samples));
+    }
+    let rate = a.inject_faults.unwrap_or(0.0);
+    if !(rate.is_finite() && (0.0..0.5).contains(&rate)) {
+        return Err(format!("--inject-faults {rate}: a fraction of bytes from 0 to below 0.5"));
+    }
+    let scenario = match &a.scenario {
+        Some(p) => Scenario::from_path(p).map_err(|e| e.to_string())?,
+        None => Scenario::default(),
+    };
+    let ts = scenario.sampling.ts_s;
+    if !(a.freq.is_finite() && a.freq > 0.0 && 2.0 * a.freq < 0.5 / ts) {
+        return Err(format!("--freq {}: above 0 and below a quarter of the sample rate", a.freq));
+    }
+    if !(a.amplitude.is_finite() && a.amplitude > 0.0 && a.amplitude <= 100.0) {
+        return Err(format!("--amplitude {}: above 0 and at most 100 V", a.amplitude));
+    }
+    let (params, design) = design(&scenario, a.freq, a.amplitude)?;
+    eprintln!("{design}");
+    let opts = HilOptions { fault_rate: rate, seed: a.seed, ..HilOptions::new(a.samples) };
+    let sim = |s: &Scenario| Bimorph::new(s).map_err(|e| e.to_string());
+    let ideal = hil::without_link(&mut sim(&scenario)?, &params, a.samples, opts.settle_samples)
+        .map_err(|e| e.to_string())?;
+    let mut plant = sim(&scenario)?;
+    let report = hil::run_on_port(&a.port, a.baud, &mut plant, &params, &opts)
+        .map_err(|e| format!("{}: {e}", a.port))?;
+    println!("{}", report.summary());
+    println!("tracking RMSE of the same controller in-process, without the link: {ideal:.4} µm");
+    let verdict = report.verdict();
+    if a.json {
+        println!("{}", report.json());
+    }
+    verdict.map_err(|e| format!("{}: {e}", a.port))
+}
+
+/// The board's parameters for the scenario at `f`, and a line saying what was designed.
+fn design(scenario: &Scenario, f: f64, amplitude: f64) -> Result<(ControllerParams, String), String> {
+    let ts = scenario.sampling.ts_s;
+    let n = (IDENT_SECONDS / ts).round() as usize;
+    let u = experiment::sine(amplitude, f, ts, n).map_err(|e| e.to_string())?;
+    let y = Bimorph::new(scenario).and_then(|mut b| b.run(&u)).map_err(|e| e.to_string())?;
+    let split = n / 2;
+    let opt = OeOptions { require_invertible: true, ..OeOptions::default() };
+    let model: HostModel = fit::fit_oe(&u, &y, ts, split, &ModelSpec::extended(f), &[], &opt)
+        .map_err(|e| format!("identifying the virtual bimorph at {f} Hz: {e}"))?
+        .model;
+    let alpha = experiment::eq25_amplitude(&u, &y);
+    let settings = experiment::CompensationSettings::default();
+    let params = |h: &[HarmonicSpec<f64>]| {
+        ControllerParams::from_design(
+            &model.ext,
+            h,
+            RlsConfig::with_forgetting(settings.lambda, settings.p0),
+            Saturation::symmetric(10.0),
+            settings.uc_max,
+            ReferenceSpec { freq_hz: f, amplitude_um: alpha, fade_s: experiment::FADE_IN_S },
+            ts,
+        )
+        .map_err(|e| format!("compensator for the board: {e}"))
+    };
+    // u_f alone in-process: which odd harmonic stands out in its tracking error?
+    let uf = params(&[])?;
+    let mut plant = Bimorph::new(scenario).map_err(|e| e.to_string())?;
+    let mut c = boucwen_hal::wire::device::Controller::new(&uf).map_err(|e| e.to_string())?;
+    let (mut y_prev, mut err) = (None, Vec::with_capacity(n));
+    for _ in 0..n {
+        let s = c.step(y_prev).map_err(|e| e.to_string())?;
+        let yk = boucwen_hal::plant::Plant::step(&mut plant, s.out.u as f64).map_err(|e| e.to_string())?;
+        y_prev = Some(yk as f32);
+        err.push(yk - s.d as f64);
+    }
+    let tail = &err[n / 2..];
+    let m = analysis::whole_periods(tail.len(), f, ts);
+    let order = sweep::dominant_odd_harmonic(
+        &tail[..m],
+        f,
+        ts,
+        sweep::MIN_HARMONIC_SHARE,
+        sweep::MIN_CANCEL_REL * alpha,
+    )
+    .map(|(o, _)| o);
+    let harmonics: Vec<HarmonicSpec<f64>> = order
+        .into_iter()
+        .flat_map(|o| experiment::model_harmonics(&model, &[o], f, ts, PhaseRule::Model))
+        .collect();
+    let line = format!(
+        "compensator for {f} Hz: extended model fitted on the virtual bimorph, alpha {alpha:.2} µm, {}",
+        match order {
+            Some(o) => format!("cancelling the harmonic of order {o} at {:.0} Hz", o as f64 * f),
+            None => "no harmonic stands out: u_f alone".into(),
+        }
+    );
+    Ok((params(&harmonics)?, line))
+}
