@@ -49,7 +49,7 @@ pub fn run(opts: &Options) -> Vec<String> {
     if let Err(mut e) = tools::check(&[&QEMU]) {
         failures.append(&mut e);
     }
-    let elf = match tools::build_firmware() {
+    let elf = match tools::build_firmware(None) {
         Ok(e) => Some(e),
         Err(mut e) => {
             failures.append(&mut e);

@@ -5,12 +5,14 @@
 //! cargo xtask qemu [--json]             self-test in QEMU, bit-exact against the host
 //! cargo xtask hil [--inject-faults R]   the board in QEMU on a pseudo-terminal, the host
 //!                 [--json]              driving the virtual bimorph over the serial link
-//! cargo xtask flash                     an STM32F4 board: build-only target, probe-rs
+//! cargo xtask qemu --orc                the same with the ORC built in and run too
+//! cargo xtask flash [--build-only]      an STM32F4 board: build, budget, probe-rs
 //! ```
 //! Every task checks the tools it needs first and names the Debian package of each missing
 //! one; all failures are listed before the task exits non-zero.
 
 mod elf;
+mod flash;
 mod hil;
 mod qemu;
 mod tools;
@@ -37,6 +39,10 @@ enum Task {
         /// End with one JSON line of the figures (the report goes to stderr).
         #[arg(long)]
         json: bool,
+        /// Build with the `orc` feature and also run Li et al.'s odd-harmonic repetitive
+        /// controller on the chip.
+        #[arg(long)]
+        orc: bool,
     },
     /// Hardware in the loop: the firmware in QEMU on a pseudo-terminal, `boucwen hil` driving
     /// the virtual bimorph against it over the serial link.
@@ -50,6 +56,16 @@ enum Task {
         /// End with one JSON line of the figures.
         #[arg(long)]
         json: bool,
+    },
+    /// Build the firmware for an STM32F4 board (feature `stm32f4`), check the budget and
+    /// flash it with probe-rs.
+    Flash {
+        /// probe-rs' chip name.
+        #[arg(long, default_value = "STM32F407VGTx")]
+        chip: String,
+        /// Build and check only (no probe needed).
+        #[arg(long)]
+        build_only: bool,
     },
 }
 
@@ -67,7 +83,7 @@ fn finish(failures: Vec<String>) -> ExitCode {
 fn main() -> ExitCode {
     let cli = Cli::parse();
     match cli.task {
-        Task::Firmware => match tools::build_firmware() {
+        Task::Firmware => match tools::build_firmware(None) {
             Ok(elf) => match qemu::describe(&elf) {
                 Ok(s) => {
                     println!("{s}");
@@ -77,8 +93,8 @@ fn main() -> ExitCode {
             },
             Err(e) => finish(e),
         },
-        Task::Qemu { samples, json } => {
-            let (summary, failures) = qemu::run(samples, json);
+        Task::Qemu { samples, json, orc } => {
+            let (summary, failures) = qemu::run(samples, json, orc);
             if let (true, Some(s)) = (json, &summary) {
                 println!("{}", qemu::json_line(s));
             }
@@ -87,5 +103,6 @@ fn main() -> ExitCode {
         Task::Hil { inject_faults, samples, json } => {
             finish(hil::run(&hil::Options { inject_faults, json, samples }))
         }
+        Task::Flash { chip, build_only } => finish(flash::run(&flash::Options { chip, build_only })),
     }
 }

@@ -14,10 +14,11 @@
 use crate::elf;
 use crate::tools::{self, Finished};
 use boucwen_core::compensator::{HarmonicSpec, PhaseRule, Saturation, harmonic_response};
+use boucwen_core::controllers::{TuneOptions, tune};
 use boucwen_core::model::{BoucWenParams, ExtendedParams, HarmonicBranch};
 use boucwen_core::rls::RlsConfig;
-use boucwen_hal::wire::device::{ClosedLoop, Controller, OnChipPlant};
-use boucwen_hal::wire::message::{ControllerParams, Mode, PlantParams, ReferenceSpec};
+use boucwen_hal::wire::device::{ClosedLoop, Controller, OnChipPlant, OrcLoop};
+use boucwen_hal::wire::message::{ControllerParams, Mode, OrcParams, PlantParams, ReferenceSpec};
 use boucwen_hal::wire::{self, Decoder, Message};
 use std::path::Path;
 use std::time::Duration;
@@ -40,26 +41,35 @@ pub struct Case {
     pub drive_hz: f64,
     /// The plant's harmonic branches.
     pub branches: &'static [(u32, f32, f32)],
+    /// Run the odd-harmonic repetitive controller (tuned from the model) instead of the
+    /// compensator (firmware feature `orc`).
+    pub orc: bool,
 }
 
 /// The cases run: the paper's 23 Hz with its third harmonic, and the worst case the board
 /// supports (two cancelled harmonics: the third and fifth of 14 Hz, the fifth on the
 /// resonance).
 pub const CASES: [Case; 2] = [
-    Case { name: "23 Hz, 3rd harmonic", drive_hz: 23.0, branches: &[(3, 0.10, -0.06)] },
+    Case { name: "23 Hz, 3rd harmonic", drive_hz: 23.0, branches: &[(3, 0.10, -0.06)], orc: false },
     Case {
         name: "14 Hz, 3rd and 5th harmonics",
         drive_hz: 14.0,
         branches: &[(3, 0.05, 0.03), (5, 0.08, -0.04)],
+        orc: false,
     },
 ];
+
+/// The case of `--orc`: Li et al.'s odd-harmonic repetitive controller on its PI, tuned by
+/// the core's rule from the model, on the 23 Hz plant.
+pub const ORC_CASE: Case =
+    Case { name: "23 Hz, ORC on PI", drive_hz: 23.0, branches: &[(3, 0.10, -0.06)], orc: true };
 
 /// The self-test's actuator and controller for `case`: a plant in µm per volt with a
 /// lightly damped resonance near 70 Hz, the Bouc–Wen loop of the core's tests and the
 /// case's harmonic branches; the compensator inverts the plant's extended part exactly and
 /// cancels every branch with the model's phase at `n·f`. Reference: 20 µm, faded in over
 /// 0.5 s.
-pub fn scenario(case: &Case) -> Result<(ControllerParams, PlantParams), String> {
+pub fn scenario(case: &Case) -> Result<(ControllerParams, PlantParams, Option<OrcParams>), String> {
     let w0 = std::f64::consts::TAU * 70.0 * TS;
     let ext = ExtendedParams::<f64, 2> {
         bw: BoucWenParams { a1: 20.0, a: 6.0, a0: 0.5, gamma: 2.0, beta: 3.0 },
@@ -93,15 +103,23 @@ pub fn scenario(case: &Case) -> Result<(ControllerParams, PlantParams), String> 
             .map(|&(order, alpha_s, alpha_c)| HarmonicBranch { order, alpha_s, alpha_c, ar: [] })
             .collect(),
     };
-    Ok((controller, plant))
+    let orc = if case.orc {
+        let t = tune(&ext, controller.drive, TS, Saturation::symmetric(10.0), &TuneOptions::default())
+            .map_err(|e| format!("{}: tuning: {e}", case.name))?;
+        Some(OrcParams::from_design(&t.pi.pi, &t.orc.orc).map_err(|e| format!("{}: {e}", case.name))?)
+    } else {
+        None
+    };
+    Ok((controller, plant, orc))
 }
 
 /// The frames file of a self-test of `case` for `samples` samples.
 pub fn frames(case: &Case, samples: u32) -> Result<Vec<u8>, String> {
-    let (c, p) = scenario(case)?;
+    let (c, p, orc) = scenario(case)?;
     let mut out = Vec::new();
-    let msgs =
-        [Message::SetController(c), Message::SetPlant(p), Message::Start { mode: Mode::Control, samples }];
+    let mut msgs = vec![Message::SetController(c), Message::SetPlant(p)];
+    msgs.extend(orc.map(Message::SetOrc));
+    msgs.push(Message::Start { mode: Mode::Control, samples });
     for (seq, m) in msgs.iter().enumerate() {
         out.extend_from_slice(
             &wire::encode(seq as u16, m).map_err(|e| format!("encoding the scenario: {e}"))?,
@@ -112,13 +130,14 @@ pub fn frames(case: &Case, samples: u32) -> Result<Vec<u8>, String> {
 
 /// The host's run of the same frames: `(u bits, y bits, d)` per sample.
 pub fn host_run(frames: &[u8]) -> Result<Vec<(u32, u32, f32)>, String> {
-    let (mut c, mut p, mut n) = (None, None, None);
+    let (mut c, mut p, mut n, mut orc) = (None, None, None, None);
     let mut dec = Decoder::new();
     for &b in frames {
         match dec.push(b) {
             Some(Ok(pk)) => match pk.msg {
                 Message::SetController(x) => c = Some(x),
                 Message::SetPlant(x) => p = Some(x),
+                Message::SetOrc(x) => orc = Some(x),
                 Message::Start { samples, .. } => n = Some(samples),
                 other => return Err(format!("unexpected message in the frames: {other:?}")),
             },
@@ -130,6 +149,16 @@ pub fn host_run(frames: &[u8]) -> Result<Vec<(u32, u32, f32)>, String> {
         (Some(c), Some(p), Some(n)) => (c, p, n),
         _ => return Err("frames lack SetController, SetPlant or Start".into()),
     };
+    if let Some(o) = orc {
+        let mut l = OrcLoop::new(&c, &o, &p).map_err(|e| format!("ORC: {e}"))?;
+        return (0..n)
+            .map(|k| {
+                let s = l.control().map_err(|e| format!("host step {k}: {e}"))?;
+                let y = l.actuate(s.out.u);
+                Ok((s.out.u.to_bits(), y.to_bits(), s.d))
+            })
+            .collect();
+    }
     let controller = Controller::new(&c).map_err(|e| format!("controller: {e}"))?;
     let plant = OnChipPlant::new(&p).map_err(|e| format!("plant: {e}"))?;
     let mut cl = ClosedLoop::new(controller, plant);
@@ -214,6 +243,7 @@ fn run_case(
     samples: u32,
     failures: &mut Vec<String>,
 ) -> Option<CaseResult> {
+    let feature = case.orc.then_some("orc");
     let mut fail = |what: String| failures.push(format!("{}: {what}", case.name));
     let frames = match frames(case, samples) {
         Ok(f) => f,
@@ -222,7 +252,7 @@ fn run_case(
             return None;
         }
     };
-    let path = tools::firmware_target_dir().join(format!("selftest-{index}.frames"));
+    let path = tools::firmware_target_dir(feature).join(format!("selftest-{index}.frames"));
     if let Err(e) = std::fs::write(&path, &frames) {
         fail(format!("{}: {e}", path.display()));
         return None;
@@ -331,13 +361,14 @@ fn run_case(
     })
 }
 
-/// Builds, runs every case and checks; returns the figures and every failure found.
-pub fn run(samples: u32, json: bool) -> (Option<Summary>, Vec<String>) {
+/// Builds (with the `orc` feature if `orc`), runs every case (the ORC's too if `orc`) and
+/// checks; returns the figures and every failure found.
+pub fn run(samples: u32, json: bool, orc: bool) -> (Option<Summary>, Vec<String>) {
     let mut failures = Vec::new();
     if let Err(mut e) = tools::check(&[&tools::QEMU]) {
         failures.append(&mut e);
     }
-    let elf = match tools::build_firmware() {
+    let elf = match tools::build_firmware(orc.then_some("orc")) {
         Ok(e) => e,
         Err(mut e) => {
             failures.append(&mut e);
@@ -359,7 +390,8 @@ pub fn run(samples: u32, json: bool) -> (Option<Summary>, Vec<String>) {
     }
     let out = |s: String| if json { eprintln!("{s}") } else { println!("{s}") };
     let mut results = Vec::new();
-    for (i, case) in CASES.iter().enumerate() {
+    let cases: Vec<&Case> = CASES.iter().chain(orc.then_some(&ORC_CASE)).collect();
+    for (i, case) in cases.into_iter().enumerate() {
         let Some(r) = run_case(&elf, case, i, samples, &mut failures) else { continue };
         out(format!("{}:", case.name));
         out(format!(
@@ -367,9 +399,18 @@ pub fn run(samples: u32, json: bool) -> (Option<Summary>, Vec<String>) {
             r.samples, r.mismatches, r.max_abs_diff, r.rmse_um
         ));
         out(format!(
-            "  control step (reference, u_f, harmonic RLS): {:.1} instructions mean, {:.0} ± {:.0} largest; \
+            "  control step ({}): {:.1} instructions mean, {:.0} ± {:.0} largest; \
              clock {:.3} instructions per 25 MHz tick; peak stack {} B",
-            r.insns_per_sample, r.max_step_insns, r.insns_per_tick, r.insns_per_tick, r.stack
+            if case.orc {
+                "reference, PI, odd-harmonic internal model"
+            } else {
+                "reference, u_f, harmonic RLS"
+            },
+            r.insns_per_sample,
+            r.max_step_insns,
+            r.insns_per_tick,
+            r.insns_per_tick,
+            r.stack
         ));
         if r.insns_per_sample.is_nan() || r.insns_per_sample > STEP_BUDGET_INSNS {
             failures.push(format!(

@@ -49,10 +49,11 @@ pub fn root() -> PathBuf {
     here.parent().map_or(here.clone(), Path::to_path_buf)
 }
 
-/// Where the firmware is built: `$CARGO_TARGET_DIR/firmware`, else `<root>/target/firmware`.
-pub fn firmware_target_dir() -> PathBuf {
+/// Where the firmware is built: `$CARGO_TARGET_DIR/firmware`, else `<root>/target/firmware`
+/// (`firmware-FEATURE` for a build with a feature, so builds do not overwrite each other).
+pub fn firmware_target_dir(feature: Option<&str>) -> PathBuf {
     let base = std::env::var_os("CARGO_TARGET_DIR").map_or_else(|| root().join("target"), PathBuf::from);
-    base.join("firmware")
+    base.join(feature.map_or_else(|| "firmware".to_string(), |f| format!("firmware-{f}")))
 }
 
 /// The firmware crate's directory.
@@ -60,13 +61,22 @@ pub fn firmware_dir() -> PathBuf {
     root().join("crates").join("firmware")
 }
 
-/// Builds the firmware (release) and returns the ELF's path.
-pub fn build_firmware() -> Result<PathBuf, Vec<String>> {
+/// Builds the firmware (release, with the cargo `feature` if given: `orc`, `stm32f4`) and
+/// returns the ELF's path.
+pub fn build_firmware(feature: Option<&str>) -> Result<PathBuf, Vec<String>> {
     check(&[&RUSTC, &CARGO, &RUST_SRC, &LLD])?;
-    let target_dir = firmware_target_dir();
-    eprintln!("building the firmware (thumbv7em-none-eabihf) in {}", target_dir.display());
-    let status = Command::new(CARGO.path)
-        .args(["build", "--release"])
+    let target_dir = firmware_target_dir(feature);
+    eprintln!(
+        "building the firmware (thumbv7em-none-eabihf{}) in {}",
+        feature.map_or(String::new(), |f| format!(", feature {f}")),
+        target_dir.display()
+    );
+    let mut cmd = Command::new(CARGO.path);
+    cmd.args(["build", "--release"]);
+    if let Some(f) = feature {
+        cmd.args(["--features", f]);
+    }
+    let status = cmd
         .current_dir(firmware_dir())
         // The outer (rustup) cargo's variables would point the inner one at the wrong
         // toolchain or make it share the host build's jobserver and lock.

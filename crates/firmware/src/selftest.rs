@@ -1,5 +1,6 @@
-//! The self-test: the compensator against the on-chip plant, every output printed as bits
-//! for the host to compare, every control step timed.
+//! The self-test: the compensator (or, with the `orc` feature and a `SetOrc` frame, the
+//! odd-harmonic repetitive controller) against the on-chip plant, every output printed as
+//! bits for the host to compare, every control step timed.
 //!
 //! The host (`cargo xtask qemu`) writes the run's frames (`SetController`, `SetPlant`,
 //! `Start`, encoded with the wire protocol) to a file and names it on QEMU's semihosting
@@ -7,6 +8,7 @@
 //! on the serial link, runs [`ClosedLoop`] for the requested samples and prints
 //!
 //! ```text
+//! selftest compensator | orc
 //! selftest samples N
 //! clock SPIN_INSNS TICKS          a 2·10⁶-instruction spin loop, timed (calibration)
 //! sample K U_BITS Y_BITS          u[k] and y[k] as f32 bits in hex, one line per sample
@@ -31,8 +33,8 @@
 use crate::board::{Board, Clock};
 use crate::say;
 use boucwen_core::Error;
-use boucwen_hal::wire::device::{ClosedLoop, ControlStep, Controller, OnChipPlant};
-use boucwen_hal::wire::message::{ControllerParams, Mode, PlantParams};
+use boucwen_hal::wire::device::{ClosedLoop, Controller, OnChipPlant};
+use boucwen_hal::wire::message::{ControllerParams, Mode, OrcParams, PlantParams};
 use boucwen_hal::wire::{Decoder, Message};
 use core::hint::black_box;
 
@@ -48,13 +50,45 @@ fn spin(iterations: u32) {
     }
 }
 
+/// A controller wired to the on-chip plant: the compensator ([`ClosedLoop`]) or, built with
+/// the `orc` feature, the odd-harmonic repetitive controller (`OrcLoop`).
+trait Loop {
+    /// One control step: `u[k]`.
+    fn control(&mut self) -> Result<f32, Error>;
+    /// Applies `u[k]` to the plant: `y[k]`.
+    fn actuate(&mut self, u: f32) -> f32;
+}
+
+impl Loop for ClosedLoop {
+    #[inline]
+    fn control(&mut self) -> Result<f32, Error> {
+        ClosedLoop::control(self).map(|s| s.out.u)
+    }
+    #[inline]
+    fn actuate(&mut self, u: f32) -> f32 {
+        ClosedLoop::actuate(self, u)
+    }
+}
+
+#[cfg(feature = "orc")]
+impl Loop for boucwen_hal::wire::device::OrcLoop {
+    #[inline]
+    fn control(&mut self) -> Result<f32, Error> {
+        boucwen_hal::wire::device::OrcLoop::control(self).map(|s| s.out.u)
+    }
+    #[inline]
+    fn actuate(&mut self, u: f32) -> f32 {
+        boucwen_hal::wire::device::OrcLoop::actuate(self, u)
+    }
+}
+
 #[inline(never)]
-fn control(cl: &mut ClosedLoop) -> Result<ControlStep, Error> {
+fn control<L: Loop>(cl: &mut L) -> Result<f32, Error> {
     cl.control()
 }
 
 #[inline(never)]
-fn nothing(cl: &mut ClosedLoop) {
+fn nothing<L>(cl: &mut L) {
     black_box(cl);
 }
 
@@ -78,9 +112,18 @@ impl core::fmt::Display for Failure {
     }
 }
 
+/// The self-test's frames: compensator (and reference), plant, the ORC's gains if the ORC
+/// is to run instead of the compensator, and the sample count.
+struct Frames {
+    controller: ControllerParams,
+    plant: PlantParams,
+    orc: Option<OrcParams>,
+    samples: u32,
+}
+
 /// Decodes the self-test's frames.
-fn parse(frames: &[u8]) -> Result<(ControllerParams, PlantParams, u32), Failure> {
-    let (mut ctl, mut plant, mut n) = (None, None, None);
+fn parse(frames: &[u8]) -> Result<Frames, Failure> {
+    let (mut ctl, mut plant, mut n, mut orc) = (None, None, None, None);
     let mut dec = Decoder::new();
     for &b in frames {
         match dec.push(b) {
@@ -89,13 +132,14 @@ fn parse(frames: &[u8]) -> Result<(ControllerParams, PlantParams, u32), Failure>
             Some(Ok(p)) => match p.msg {
                 Message::SetController(c) => ctl = Some(c),
                 Message::SetPlant(pl) => plant = Some(pl),
+                Message::SetOrc(o) => orc = Some(o),
                 Message::Start { mode: Mode::Control, samples } => n = Some(samples),
                 _ => return Err(Failure::Frames("unexpected message")),
             },
         }
     }
     match (ctl, plant, n) {
-        (Some(c), Some(p), Some(n)) => Ok((c, p, n)),
+        (Some(controller), Some(plant), Some(samples)) => Ok(Frames { controller, plant, orc, samples }),
         _ => Err(Failure::Frames("need SetController, SetPlant and Start{Control}")),
     }
 }
@@ -122,9 +166,28 @@ pub fn stack_peak() -> u32 {
 
 /// Runs the self-test on the frames in `frames`.
 pub fn run(board: &mut Board, frames: &[u8]) -> Result<(), Failure> {
-    let (cp, pp, n) = parse(frames)?;
-    let controller = Controller::new(&cp).map_err(Failure::Params)?;
-    let plant = OnChipPlant::new(&pp).map_err(Failure::Params)?;
+    let f = parse(frames)?;
+    match f.orc {
+        None => {
+            let controller = Controller::new(&f.controller).map_err(Failure::Params)?;
+            let plant = OnChipPlant::new(&f.plant).map_err(Failure::Params)?;
+            say!("selftest compensator");
+            exercise(board, ClosedLoop::new(controller, plant), f.samples)
+        }
+        #[cfg(feature = "orc")]
+        Some(o) => {
+            let l = boucwen_hal::wire::device::OrcLoop::new(&f.controller, &o, &f.plant)
+                .map_err(Failure::Params)?;
+            say!("selftest orc");
+            exercise(board, l, f.samples)
+        }
+        #[cfg(not(feature = "orc"))]
+        Some(_) => Err(Failure::Frames("SetOrc: the ORC is not built in (firmware feature `orc`)")),
+    }
+}
+
+/// Times `n` steps of `cl` and prints every output.
+fn exercise<L: Loop>(board: &mut Board, mut cl: L, n: u32) -> Result<(), Failure> {
     let clock: &Clock = &board.clock;
     say!("selftest samples {}", n);
 
@@ -133,7 +196,6 @@ pub fn run(board: &mut Board, frames: &[u8]) -> Result<(), Failure> {
     let t1 = clock.now();
     say!("clock {} {}", 2 * SPIN_ITERATIONS, t1.wrapping_sub(t0));
 
-    let mut cl = ClosedLoop::new(controller, plant);
     let mut empty_ticks = 0u64;
     for _ in 0..n {
         let a = clock.now();
@@ -144,14 +206,14 @@ pub fn run(board: &mut Board, frames: &[u8]) -> Result<(), Failure> {
     let (mut step_ticks, mut max_ticks) = (0u64, 0u32);
     for k in 0..n {
         let a = clock.now();
-        let step = control(&mut cl);
+        let u = control(&mut cl);
         let b = clock.now();
-        let step = step.map_err(|e| Failure::Step(k, e))?;
+        let u = u.map_err(|e| Failure::Step(k, e))?;
         let dt = b.wrapping_sub(a);
         step_ticks += dt as u64;
         max_ticks = max_ticks.max(dt);
-        let y = cl.actuate(step.out.u);
-        say!("sample {} {:08x} {:08x}", k, step.out.u.to_bits(), y.to_bits());
+        let y = cl.actuate(u);
+        say!("sample {} {:08x} {:08x}", k, u.to_bits(), y.to_bits());
     }
     say!("timing {} {} {} {}", n, step_ticks, empty_ticks, max_ticks);
     say!("stack {}", stack_peak());

@@ -1,5 +1,5 @@
 //! The board layer for an STM32F4 (STM32F405/407 class, Cortex-M4F), feature `stm32f4`.
-//! Build-only: it is compiled and linked by `cargo xtask firmware --board stm32f4` and
+//! Build-only: it is compiled, linked and checked by `cargo xtask flash --build-only` and
 //! flashed by `cargo xtask flash`, but no emulator runs it here, so it has not run on a chip.
 //!
 //! | peripheral | address | IRQ | use |

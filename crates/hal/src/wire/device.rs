@@ -9,6 +9,8 @@
 //!   (`d[k]`, `u_f[k]`, the harmonic RLS update and `u[k]`).
 //! * [`OnChipPlant`]: the core's enhanced model in `f32`, the board's stand-in actuator.
 //! * [`ClosedLoop`]: controller and on-chip plant wired together (the self-test).
+//! * [`OrcLoop`]: the reference, the odd-harmonic repetitive controller on its PI
+//!   ([`OrcParams`]) and the on-chip plant (the firmware's `orc` self-test).
 //! * [`Device`]: the message handler and per-tick step of the firmware.
 //!
 //! ## Device behaviour
@@ -16,6 +18,7 @@
 //! |---|---|---|---|
 //! | `GetStatus` | `Status` | `Status` | `Status` |
 //! | `SetController`, `SetPlant` | validate, `Ack` or `Fault(InvalidParams)` | `Fault(Busy)` | `Fault(Busy)` |
+//! | `SetOrc` | `Fault(Unexpected)`: the link runs the compensator | `Fault(Unexpected)` | `Fault(Unexpected)` |
 //! | `Start{mode, n}` | `Ack`, run starts (`Fault(NotConfigured)` without parameters) | `Fault(Busy)` | `Fault(Busy)` |
 //! | `Stop` | `Status` | run ends, `Status` | run ends, `Status` |
 //! | `Measurement{k}` | counted stale | kept for the next tick if `k` is the last command's sample, else counted stale | `Fault(Unexpected)` |
@@ -29,12 +32,13 @@
 
 use super::frame::SeqTracker;
 use super::message::{
-    ControllerParams, Fault, FaultCode, MAX_AR, MAX_HARMONICS, Message, Mode, PlantParams, RunState, Status,
-    command_flags, kind,
+    ControllerParams, Fault, FaultCode, MAX_AR, MAX_HARMONICS, Message, Mode, OrcParams, PlantParams,
+    RunState, Status, command_flags, kind,
 };
 use super::{Packet, WireError, encode};
 use boucwen_core::Error;
 use boucwen_core::compensator::{Compensator, CompensatorConfig, CompensatorOutput, HarmonicSpec};
+use boucwen_core::controllers::{ControlOutput, Controller as _, ORC_CAPACITY, OrcController};
 use boucwen_core::model::{EnhancedParams, EnhancedState, HarmonicBranch, Model};
 use boucwen_core::signal::sin_cos;
 use nalgebra::Complex;
@@ -226,6 +230,65 @@ impl ClosedLoop {
     }
 }
 
+/// The odd-harmonic repetitive controller against the on-chip plant: Li et al.'s peer of
+/// the compensator, run on the board in the firmware's `orc` self-test and on the host as
+/// its bit-exact reference. The delay line holds [`ORC_CAPACITY`] samples (2 KiB).
+#[derive(Clone, Debug)]
+pub struct OrcLoop {
+    reference: Reference,
+    /// The controller.
+    pub orc: OrcController<f32, ORC_CAPACITY>,
+    /// The plant.
+    pub plant: OnChipPlant,
+    y_prev: Option<f32>,
+    k: u32,
+}
+
+/// One ORC step's result.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct OrcStep {
+    /// Sample index.
+    pub k: u32,
+    /// The reference `d[k]`, µm.
+    pub d: f32,
+    /// The controller's output (`u[k]` and its parts).
+    pub out: ControlOutput<f32>,
+}
+
+impl OrcLoop {
+    /// The loop of `c` (reference, range), `o` (gains) and `p` (plant), validated.
+    pub fn new(c: &ControllerParams, o: &OrcParams, p: &PlantParams) -> Result<Self, Error> {
+        let (pi, orc) = o.configs(c);
+        Ok(Self {
+            reference: Reference::new(c),
+            orc: OrcController::new(pi, orc)?,
+            plant: OnChipPlant::new(p)?,
+            y_prev: None,
+            k: 0,
+        })
+    }
+
+    /// The control step of the next sample: `d[k]`, then `u[k]` from `y[k-1]`.
+    #[inline]
+    pub fn control(&mut self) -> Result<OrcStep, Error> {
+        let mut reference = self.reference;
+        let d = reference.next_sample();
+        let out = self.orc.step(d, self.y_prev)?;
+        self.reference = reference;
+        let k = self.k;
+        self.k = self.k.saturating_add(1);
+        Ok(OrcStep { k, d, out })
+    }
+
+    /// Applies `u` to the plant and keeps its output for the next control step.
+    #[inline]
+    pub fn actuate(&mut self, u: f32) -> f32 {
+        let y = self.plant.step(u);
+        self.y_prev = Some(y);
+        y
+    }
+}
+
 /// What the firmware must do with its sample timer after a message.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum TimerRequest {
@@ -395,6 +458,10 @@ impl Device {
                 Err(e) => self.fault(send, FaultCode::InvalidParams, seq, e),
             },
             Message::Start { mode, samples } if !busy => return self.start(mode, samples, seq, send),
+            // The link runs the compensator; the ORC runs in the self-test (feature `orc`).
+            Message::SetOrc(_) => {
+                self.fault(send, FaultCode::Unexpected, seq, "the link runs the compensator, not the ORC")
+            }
             Message::SetController(_) | Message::SetPlant(_) | Message::Start { .. } => {
                 self.fault(send, FaultCode::Busy, seq, "a run is going on; send Stop first")
             }

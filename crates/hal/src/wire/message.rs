@@ -9,6 +9,7 @@
 //! | `0x05` | [`Message::Stop`] | host → board | 0 |
 //! | `0x06` | [`Message::Measurement`] | either | k u32, y f32 (µm) |
 //! | `0x07` | [`Message::Command`] | either | k u32, u f32 (V), used u16, flags u8 |
+//! | `0x08` | [`Message::SetOrc`] | host → board | [`OrcParams`], 27 |
 //! | `0x10` | [`Message::Ack`] | board → host | kind u8, seq u16 |
 //! | `0x11` | [`Message::Status`] | board → host | [`Status`], 50 |
 //! | `0x12` | [`Message::Fault`] | board → host | code u8, seq u16, text (≤ 48 bytes UTF-8) |
@@ -22,6 +23,7 @@
 use super::WireError;
 use super::frame::MAX_PAYLOAD;
 use boucwen_core::compensator::{HarmonicSpec, Saturation};
+use boucwen_core::controllers::{OrcConfig, OrcPlacement, PiConfig};
 use boucwen_core::model::{BoucWenParams, ExtendedParams, HarmonicBranch};
 use boucwen_core::rls::RlsConfig;
 use boucwen_core::signal::Oscillator;
@@ -171,6 +173,94 @@ pub struct PlantParams {
     pub branches: Vec<HarmonicBranch<f32, 0>, MAX_HARMONICS>,
 }
 
+/// The odd-harmonic repetitive controller on its PI (`boucwen_core::controllers`), which a
+/// board built with the firmware's `orc` feature runs in place of the compensator: the
+/// gains of [`boucwen_core::controllers::tune`]. The reference, the sample period and the
+/// driver's range are the [`ControllerParams`]' (sent before).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct OrcParams {
+    /// PI proportional gain `Kp`, V/µm.
+    pub kp: f32,
+    /// PI integral gain `Ki`, V/(µm·s).
+    pub ki_per_s: f32,
+    /// Static feedforward gain `k_ff`, V/µm (0: none).
+    pub feedforward_gain: f32,
+    /// `a` of the robustness filter `Q = [a, 1-2a, a]`.
+    pub q_coeff: f32,
+    /// Learning gain (see `OrcConfig::learning_gain`).
+    pub learning_gain: f32,
+    /// Phase lead `m`, samples.
+    pub lead_samples: u16,
+    /// Bound on `|u_rc|`.
+    pub limit: f32,
+    /// Where `u_rc` enters the loop.
+    pub placement: OrcPlacement,
+}
+
+impl OrcParams {
+    /// The wire form of a host design (`f64`, rounded to `f32`).
+    pub fn from_design(pi: &PiConfig<f64>, orc: &OrcConfig<f64>) -> Result<Self, boucwen_core::Error> {
+        let lead_samples = u16::try_from(orc.lead_samples)
+            .map_err(|_| boucwen_core::Error::OutOfRange("ORC lead (at most 65535 samples on the wire)"))?;
+        Ok(Self {
+            kp: pi.kp as f32,
+            ki_per_s: pi.ki_per_s as f32,
+            feedforward_gain: pi.feedforward_gain as f32,
+            q_coeff: orc.q_coeff as f32,
+            learning_gain: orc.learning_gain as f32,
+            lead_samples,
+            limit: orc.limit as f32,
+            placement: orc.placement,
+        })
+    }
+
+    /// The PI and internal-model configurations with the controller's reference, sample
+    /// period and range.
+    pub fn configs(&self, c: &ControllerParams) -> (PiConfig<f32>, OrcConfig<f32>) {
+        let pi = PiConfig {
+            kp: self.kp,
+            ki_per_s: self.ki_per_s,
+            ts_s: c.sample_period_us as f32 * 1e-6,
+            feedforward_gain: self.feedforward_gain,
+            saturation: c.saturation,
+        };
+        let orc = OrcConfig {
+            drive: c.drive,
+            q_coeff: self.q_coeff,
+            learning_gain: self.learning_gain,
+            lead_samples: u32::from(self.lead_samples),
+            limit: self.limit,
+            placement: self.placement,
+        };
+        (pi, orc)
+    }
+
+    fn write(&self, w: &mut Writer<'_>) -> Result<(), WireError> {
+        for v in [self.kp, self.ki_per_s, self.feedforward_gain, self.q_coeff, self.learning_gain] {
+            w.f32(v)?;
+        }
+        w.u16(self.lead_samples)?;
+        w.f32(self.limit)?;
+        w.u8(match self.placement {
+            OrcPlacement::PlantInput => 1,
+            OrcPlacement::PiInput => 2,
+        })
+    }
+
+    fn read(r: &mut Reader<'_>) -> Result<Self, WireError> {
+        let (kp, ki_per_s, feedforward_gain, q_coeff, learning_gain) =
+            (r.f32()?, r.f32()?, r.f32()?, r.f32()?, r.f32()?);
+        let lead_samples = r.u16()?;
+        let limit = r.f32()?;
+        let placement = match r.u8()? {
+            1 => OrcPlacement::PlantInput,
+            2 => OrcPlacement::PiInput,
+            _ => return Err(WireError::BadValue("ORC placement")),
+        };
+        Ok(Self { kp, ki_per_s, feedforward_gain, q_coeff, learning_gain, lead_samples, limit, placement })
+    }
+}
+
 /// What a [`Message::Start`] starts.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Mode {
@@ -291,6 +381,9 @@ pub enum Message {
     SetController(ControllerParams),
     /// Configures the on-chip plant (answered by [`Message::Ack`] or [`Message::Fault`]).
     SetPlant(PlantParams),
+    /// Configures the odd-harmonic repetitive controller (a board built with the `orc`
+    /// feature; others answer with a [`Message::Fault`]).
+    SetOrc(OrcParams),
     /// Starts a run of `samples` samples (0: until [`Message::Stop`]).
     Start {
         /// What the board does in the run.
@@ -349,6 +442,8 @@ pub mod kind {
     pub const MEASUREMENT: u8 = 0x06;
     /// [`super::Message::Command`]
     pub const COMMAND: u8 = 0x07;
+    /// [`super::Message::SetOrc`]
+    pub const SET_ORC: u8 = 0x08;
     /// [`super::Message::Ack`]
     pub const ACK: u8 = 0x10;
     /// [`super::Message::Status`]
@@ -361,6 +456,7 @@ pub mod kind {
 const CONTROLLER_LEN: usize = 5 * 4 + MAX_AR * 4 + 8 + 4 + 4 + 4 + 1 + MAX_HARMONICS * 9 + 3 * 4 + 2 * 4 + 4;
 const PLANT_LEN: usize = 5 * 4 + MAX_AR * 4 + 8 + 1 + MAX_HARMONICS * 9;
 const STATUS_LEN: usize = 2 + 12 * 4;
+const ORC_LEN: usize = 5 * 4 + 2 + 4 + 1;
 const _: () = assert!(CONTROLLER_LEN <= MAX_PAYLOAD && PLANT_LEN <= MAX_PAYLOAD);
 const _: () = assert!(4 + MAX_TEXT <= MAX_PAYLOAD);
 
@@ -610,6 +706,7 @@ impl Message {
             Message::GetStatus => kind::GET_STATUS,
             Message::SetController(_) => kind::SET_CONTROLLER,
             Message::SetPlant(_) => kind::SET_PLANT,
+            Message::SetOrc(_) => kind::SET_ORC,
             Message::Start { .. } => kind::START,
             Message::Stop => kind::STOP,
             Message::Measurement { .. } => kind::MEASUREMENT,
@@ -627,6 +724,7 @@ impl Message {
             Message::GetStatus | Message::Stop => {}
             Message::SetController(p) => p.write(&mut w)?,
             Message::SetPlant(p) => p.write(&mut w)?,
+            Message::SetOrc(p) => p.write(&mut w)?,
             Message::Start { mode, samples } => {
                 w.u8(*mode as u8)?;
                 w.u32(*samples)?;
@@ -670,6 +768,7 @@ impl Message {
             kind::GET_STATUS => Message::GetStatus,
             kind::SET_CONTROLLER => Message::SetController(ControllerParams::read(&mut r)?),
             kind::SET_PLANT => Message::SetPlant(PlantParams::read(&mut r)?),
+            kind::SET_ORC => Message::SetOrc(OrcParams::read(&mut r)?),
             kind::START => {
                 let mode = match r.u8()? {
                     1 => Mode::Control,
@@ -710,4 +809,4 @@ impl Message {
     }
 }
 
-const _: () = assert!(CONTROLLER_LEN == 95 && PLANT_LEN == 59 && STATUS_LEN == 50);
+const _: () = assert!(CONTROLLER_LEN == 95 && PLANT_LEN == 59 && STATUS_LEN == 50 && ORC_LEN == 27);

@@ -6,6 +6,7 @@ use super::frame::{MAX_ENCODED, MAX_PAYLOAD};
 use super::message::*;
 use super::*;
 use boucwen_core::compensator::{HarmonicSpec, Saturation};
+use boucwen_core::controllers::OrcPlacement;
 use boucwen_core::model::{BoucWenParams, ExtendedParams, HarmonicBranch};
 use boucwen_core::rls::RlsConfig;
 use boucwen_core::signal::Oscillator;
@@ -71,6 +72,16 @@ fn every_message() -> Vec<Message> {
         Message::SetController(controller_params(&[])),
         Message::SetController(controller_params(&[(3, 1.5, -0.25), (5, -0.0, f32::MIN_POSITIVE)])),
         Message::SetPlant(plant_params()),
+        Message::SetOrc(OrcParams {
+            kp: 0.0,
+            ki_per_s: 1.25,
+            feedforward_gain: -0.5,
+            q_coeff: 0.05,
+            learning_gain: 0.4,
+            lead_samples: 7,
+            limit: 3.5,
+            placement: OrcPlacement::PiInput,
+        }),
         Message::Start { mode: Mode::Control, samples: 5000 },
         Message::Start { mode: Mode::Plant, samples: u32::MAX },
         Message::Stop,
@@ -439,4 +450,32 @@ fn device_counts_lost_frames_from_sequence_gaps() {
         Some(Message::Status(s)) => assert_eq!((s.rx_frames, s.rx_bad, s.rx_lost), (2, 1, 3)),
         other => panic!("{other:?}"),
     }
+}
+
+#[test]
+fn a_bad_orc_placement_is_rejected_and_the_link_refuses_the_orc() {
+    let msg = Message::SetOrc(OrcParams {
+        kp: 0.1,
+        ki_per_s: 1.0,
+        feedforward_gain: 0.0,
+        q_coeff: 0.1,
+        learning_gain: 0.5,
+        lead_samples: 3,
+        limit: 1.0,
+        placement: OrcPlacement::PlantInput,
+    });
+    let mut buf = [0u8; MAX_PAYLOAD];
+    let n = msg.encode_payload(&mut buf).unwrap();
+    buf[n - 1] = 9;
+    assert!(matches!(Message::decode(kind::SET_ORC, &buf[..n]), Err(WireError::BadValue("ORC placement"))));
+    // A board serving the link answers SetOrc with a fault, not an Ack.
+    let mut dev = Device::new();
+    let mut sent = Vec::new();
+    dev.on_packet(Ok(Packet { seq: 4, msg }), &mut |b: &[u8]| sent.extend_from_slice(b));
+    let mut dec = Decoder::new();
+    let answers: Vec<Message> = sent.iter().filter_map(|&b| dec.push(b)).map(|p| p.unwrap().msg).collect();
+    assert!(
+        matches!(&answers[..], [Message::Fault(f)] if f.code == FaultCode::Unexpected && f.seq == 4),
+        "{answers:?}"
+    );
 }
