@@ -635,8 +635,16 @@ mod tests {
         }
     }
 
-    fn run_over<P: Port>(port: P, board_port: impl Port + Send + 'static, opts: HilOptions) -> HilReport {
-        let (stop, h) = crate::transport::test_board::spawn(board_port, Duration::from_millis(3));
+    /// Runs against a board thread that ticks when the last measurement is in or after
+    /// `patience`: a long patience makes a clean link lockstep whatever the machine's load
+    /// (every measurement used), a short one keeps a lossy run fast.
+    fn run_over<P: Port>(
+        port: P,
+        board_port: impl Port + Send + 'static,
+        opts: HilOptions,
+        patience: Duration,
+    ) -> HilReport {
+        let (stop, h) = crate::transport::test_board::spawn(board_port, patience);
         let mut link = Link::new(port);
         let mut plant = ModelPlant::new();
         let r = run(&mut link, &mut plant, &params(), &opts).unwrap();
@@ -650,7 +658,7 @@ mod tests {
     fn clean_link_reproduces_the_loop_exactly() {
         let (a, b) = MemoryPort::pair();
         let opts = HilOptions::new(3000);
-        let r = run_over(a, b, opts);
+        let r = run_over(a, b, opts, Duration::from_secs(1));
         assert!(r.problems.is_empty(), "{:?}", r.problems);
         assert_eq!((r.samples, r.samples_accounted, r.commands_applied), (3000, 3000, 3000));
         assert_eq!((r.corrupted_frames, r.lost_frames, r.shadow_mismatches), (0, 0, 0));
@@ -666,7 +674,7 @@ mod tests {
     fn faults_are_detected_and_every_sample_accounted() {
         let (a, b) = MemoryPort::pair();
         let opts = HilOptions { fault_rate: 0.01, seed: 7, ..HilOptions::new(3000) };
-        let r = run_over(a, b, opts);
+        let r = run_over(a, b, opts, Duration::from_millis(3));
         assert!(r.problems.is_empty(), "{:?}", r.problems);
         assert_eq!(r.samples_accounted, 3000);
         assert_eq!(r.commands_applied + r.commands_held, 3000);
@@ -686,7 +694,7 @@ mod tests {
         let (master, slave) = serialport::TTYPort::pair().expect("a pseudo-terminal pair");
         let host = SerialPort::from_port(Box::new(slave), "pty slave");
         let dev = SerialPort::from_port(Box::new(master), "pty master");
-        let r = run_over(host, dev, HilOptions::new(1000));
+        let r = run_over(host, dev, HilOptions::new(1000), Duration::from_secs(1));
         assert!(r.problems.is_empty(), "{:?}", r.problems);
         assert_eq!(
             (r.samples_accounted, r.corrupted_frames, r.lost_frames, r.shadow_mismatches),
