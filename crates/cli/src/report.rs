@@ -216,37 +216,32 @@ pub fn residual_spectrum(d: &Diagnosis, y: &[f64]) -> Chart {
 /// Measured and model loops in the u–y plane over the last two held-out periods.
 pub fn diagnosis_loops(d: &Diagnosis, u: &[f64], y: &[f64]) -> Chart {
     let r = last_periods(y.len(), d.drive_hz, d.ts, 2.0);
-    let uu = u[r.clone()].to_vec();
-    Chart::new(format!("Loops at {:.2} Hz (held-out data)", d.drive_hz), "u (V)", "y (µm)")
-        .with(Series::line("measured", uu.clone(), y[r.clone()].to_vec(), 7))
-        .with(
-            Series::line(
-                format!("baseline: {}", d.baseline.name()),
-                uu.clone(),
-                d.baseline_sim[r.clone()].to_vec(),
-                0,
-            )
-            .dashed(),
-        )
-        .with(Series::line(format!("extended: {}", d.model.name()), uu, d.model_sim[r].to_vec(), 1))
+    let chart = Chart::new(format!("Loops at {:.2} Hz (held-out data)", d.drive_hz), "u (V)", "y (µm)");
+    with_models(chart, d, &u[r.clone()], y, r)
 }
 
 /// Measured output and both models' free runs over the last three held-out periods.
 pub fn diagnosis_time_series(d: &Diagnosis, y: &[f64]) -> Chart {
     let r = last_periods(y.len(), d.drive_hz, d.ts, 3.0);
     let t: Vec<f64> = r.clone().map(|k| k as f64 * d.ts).collect();
-    Chart::new("Output and free-run models (held-out data)", "t (s)", "y (µm)")
-        .with(Series::line("measured", t.clone(), y[r.clone()].to_vec(), 7))
+    with_models(Chart::new("Output and free-run models (held-out data)", "t (s)", "y (µm)"), d, &t, y, r)
+}
+
+/// `chart` with the measured `y`, the baseline's and the extended model's free runs over
+/// the samples `r`, against `x`.
+fn with_models(chart: Chart, d: &Diagnosis, x: &[f64], y: &[f64], r: std::ops::Range<usize>) -> Chart {
+    chart
+        .with(Series::line("measured", x.to_vec(), y[r.clone()].to_vec(), 7))
         .with(
             Series::line(
                 format!("baseline: {}", d.baseline.name()),
-                t.clone(),
+                x.to_vec(),
                 d.baseline_sim[r.clone()].to_vec(),
                 0,
             )
             .dashed(),
         )
-        .with(Series::line(format!("extended: {}", d.model.name()), t, d.model_sim[r].to_vec(), 1))
+        .with(Series::line(format!("extended: {}", d.model.name()), x.to_vec(), d.model_sim[r].to_vec(), 1))
 }
 
 /// The held-out residual in time, before (baseline) and after (extended model).
