@@ -125,6 +125,11 @@ pub struct HilReport {
     pub corrupted_frames: u64,
     /// Frames that vanished (sequence gaps not explained by rejected frames), both sides.
     pub lost_frames: u64,
+    /// Frames the fault injector damaged: `(sent by the host, received by the host)`.
+    pub damaged_frames: (u64, u64),
+    /// Damaged frames taken for intact ones: received by the host and passing its checks,
+    /// or measurements the host sent damaged that the board reports it used. Must be 0.
+    pub undetected_frames: u64,
     /// Tracking RMSE `√mean((y − d)²)` from [`HilOptions::settle_samples`] on, µm.
     pub rmse_um: f64,
     /// Commands compared with the host's shadow controller.
@@ -294,6 +299,9 @@ pub fn run<P: Port>(
     let mut reference = Reference::new(params);
     let mut log: Vec<SampleRecord> = Vec::with_capacity(n as usize);
     let mut sent_y: Vec<Option<f32>> = vec![None; n as usize];
+    // Whether the injector damaged the measurement frame of each sample.
+    let mut sent_damaged = vec![false; n as usize];
+    let (mut tx_damaged, mut used_damaged) = (0u64, 0u64);
     let mut shadow = Shadow { controller, next: 0, alive: true, checked: 0, mismatches: 0 };
     let mut problems = Vec::new();
     let (mut last_u, mut stale, mut board_faults) = (0.0f32, 0u32, 0u32);
@@ -327,12 +335,26 @@ pub fn run<P: Port>(
                 if k + 1 < n {
                     link.send(&Message::Measurement { k, y: y as f32 })?;
                     sent_y[k as usize] = Some(y as f32);
+                    if link.last_sent_damaged() {
+                        sent_damaged[k as usize] = true;
+                        tx_damaged += 1;
+                    }
                 }
                 // Bit i: the step of sample k - i used y[k - i - 1].
                 for i in 0..16u32.min(k) {
                     let j = (k - i - 1) as usize;
-                    log[j].measurement =
+                    let fate =
                         if used >> i & 1 == 1 { MeasurementFate::Used } else { MeasurementFate::Missed };
+                    if fate == MeasurementFate::Used
+                        && sent_damaged[j]
+                        && log[j].measurement != MeasurementFate::Used
+                    {
+                        used_damaged += 1;
+                        problems.push(format!(
+                            "the board used the measurement of sample {j}, whose frame was damaged on the way"
+                        ));
+                    }
+                    log[j].measurement = fate;
                 }
                 if shadow.alive {
                     if k - shadow.next >= 16 {
@@ -419,7 +441,15 @@ pub fn run<P: Port>(
         rx_frames: stats1.rx_frames - stats0.rx_frames,
         rx_bad: stats1.rx_bad - stats0.rx_bad,
         rx_lost: stats1.rx_lost - stats0.rx_lost,
+        rx_damaged: stats1.rx_damaged - stats0.rx_damaged,
+        rx_undetected: stats1.rx_undetected - stats0.rx_undetected,
     };
+    if host_link.rx_undetected > 0 {
+        problems.push(format!(
+            "{} damaged frames from the board passed the host's checks",
+            host_link.rx_undetected
+        ));
+    }
     let diff = |a: FaultCounts, b: FaultCounts| FaultCounts {
         bytes: a.bytes - b.bytes,
         dropped: a.dropped - b.dropped,
@@ -438,6 +468,8 @@ pub fn run<P: Port>(
         commands_held: n - commands_applied,
         corrupted_frames: host_link.rx_bad + board.rx_bad as u64,
         lost_frames: host_link.rx_lost + board.rx_lost as u64,
+        damaged_frames: (tx_damaged, host_link.rx_damaged),
+        undetected_frames: host_link.rx_undetected + used_damaged,
         rmse_um,
         shadow_checked: shadow.checked,
         shadow_mismatches: shadow.mismatches,
@@ -504,6 +536,9 @@ impl HilReport {
         if self.samples_accounted != self.samples {
             bad.push(format!("{} of {} samples accounted for", self.samples_accounted, self.samples));
         }
+        if self.undetected_frames > 0 {
+            bad.push(format!("{} damaged frames were taken for intact ones", self.undetected_frames));
+        }
         if self.shadow_mismatches > 0 {
             bad.push(format!("{} commands differ from the host's shadow controller", self.shadow_mismatches));
         }
@@ -520,6 +555,7 @@ impl HilReport {
              measurements (board): {} used, {} missing, {} stale\n\
              frames: {} corrupted (host {}, board {}), {} lost (host {}, board {})\n\
              injected: sent {} bytes ({} dropped, {} flipped), received {} bytes ({} dropped, {} flipped)\n\
+             damaged frames: {} sent, {} received; {} taken for intact\n\
              shadow: {} commands compared bit for bit, {} differ\n\
              tracking RMSE: {:.4} µm\n\
              board: {} tick overruns, {} bytes overflowed, {} compute errors",
@@ -543,6 +579,9 @@ impl HilReport {
             rx.bytes,
             rx.dropped,
             rx.corrupted,
+            self.damaged_frames.0,
+            self.damaged_frames.1,
+            self.undetected_frames,
             self.shadow_checked,
             self.shadow_mismatches,
             self.rmse_um,
@@ -635,9 +674,9 @@ mod tests {
         }
     }
 
-    /// Runs against a board thread that ticks when the last measurement is in or after
-    /// `patience`: a long patience makes a clean link lockstep whatever the machine's load
-    /// (every measurement used), a short one keeps a lossy run fast.
+    /// A run against the test board, which ticks when the last command's measurement is in
+    /// or `patience` after its last tick (long on a clean link, where no measurement is lost,
+    /// so a busy machine does not make the board step without one).
     fn run_over<P: Port>(
         port: P,
         board_port: impl Port + Send + 'static,
@@ -680,8 +719,12 @@ mod tests {
         assert_eq!(r.commands_applied + r.commands_held, 3000);
         assert!(r.commands_held > 0 && r.board.measurements_missing > 0);
         assert!(r.corrupted_frames > 0, "{}", r.summary());
-        // No damaged frame was taken for a good one: the shadow agrees everywhere.
+        // No damaged frame was taken for a good one: the shadow agrees everywhere, and
+        // none of the frames known to be damaged passed (either way).
         assert_eq!(r.shadow_mismatches, 0);
+        assert!(r.damaged_frames.0 > 0 && r.damaged_frames.1 > 0, "{}", r.summary());
+        assert_eq!(r.undetected_frames, 0);
+        assert_eq!(r.host_link.rx_damaged, r.host_link.rx_bad, "{}", r.summary());
         assert!(r.shadow_checked >= r.commands_applied.saturating_sub(1));
         let (tx, rx) = r.injected;
         assert!(tx.dropped + tx.corrupted > 0 && rx.dropped + rx.corrupted > 0);
