@@ -41,16 +41,32 @@ pub fn create_dir(dir: &Path) -> Result<(), ReportError> {
     std::fs::create_dir_all(dir).map_err(|source| ReportError::CreateDir { path: dir.to_path_buf(), source })
 }
 
+/// Files written atomically into one directory, remembered in order.
+struct Output<'a> {
+    dir: &'a Path,
+    written: Vec<PathBuf>,
+}
+
+impl<'a> Output<'a> {
+    /// Creates `dir` (and its parents).
+    fn new(dir: &'a Path) -> Result<Self, ReportError> {
+        create_dir(dir)?;
+        Ok(Self { dir, written: vec![] })
+    }
+
+    /// Writes `text` to `dir/name` atomically.
+    fn put(&mut self, name: &str, text: String) -> Result<(), ReportError> {
+        let p = self.dir.join(name);
+        write_atomic(&p, text.as_bytes()).map_err(ReportError::Write)?;
+        self.written.push(p);
+        Ok(())
+    }
+}
+
 /// Writes `sweep.csv` and the figures into `dir`; returns the files written.
 pub fn write_sweep(result: &SweepResult, dir: &Path) -> Result<Vec<PathBuf>, ReportError> {
-    create_dir(dir)?;
-    let mut written = vec![];
-    let mut put = |name: &str, text: String| -> Result<(), ReportError> {
-        let p = dir.join(name);
-        write_atomic(&p, text.as_bytes()).map_err(ReportError::Write)?;
-        written.push(p);
-        Ok(())
-    };
+    let mut out = Output::new(dir)?;
+    let mut put = |name: &str, text: String| out.put(name, text);
     put("sweep.csv", result.csv())?;
     put("modelling_error.svg", modelling_error(result).to_svg())?;
     put("compensation_rmse.svg", compensation(result).to_svg())?;
@@ -63,7 +79,7 @@ pub fn write_sweep(result: &SweepResult, dir: &Path) -> Result<Vec<PathBuf>, Rep
     if !result.traces.is_empty() {
         put("spectra.svg", spectra(&result.traces).to_svg())?;
     }
-    Ok(written)
+    Ok(out.written)
 }
 
 fn col(result: &SweepResult, f: impl Fn(&crate::sweep::Row) -> f64) -> Vec<f64> {
@@ -156,14 +172,8 @@ pub fn write_diagnosis(
     source: &str,
     dir: &Path,
 ) -> Result<Vec<PathBuf>, ReportError> {
-    create_dir(dir)?;
-    let mut written = vec![];
-    let mut put = |name: &str, text: String| -> Result<(), ReportError> {
-        let p = dir.join(name);
-        write_atomic(&p, text.as_bytes()).map_err(ReportError::Write)?;
-        written.push(p);
-        Ok(())
-    };
+    let mut out = Output::new(dir)?;
+    let mut put = |name: &str, text: String| out.put(name, text);
     let figures = [
         ("residual_spectrum.svg", residual_spectrum(d, y).to_svg()),
         ("loops.svg", diagnosis_loops(d, u, y).to_svg()),
@@ -185,7 +195,7 @@ pub fn write_diagnosis(
     html.push_str("</body></html>\n");
     put("diagnosis.json", format!("{:#}\n", d.json()))?;
     put("index.html", html)?;
-    Ok(written)
+    Ok(out.written)
 }
 
 fn html_escape(s: &str) -> String {
