@@ -669,7 +669,9 @@ pub(crate) mod test_board {
                 }
                 if ticking && last_tick.elapsed() >= patience {
                     last_tick = Instant::now();
-                    if dev.on_tick(0, &mut send) == TimerRequest::Stop {
+                    if dev.on_tick(0, &mut crate::wire::analog::NoFrontEnd, &|| 0, &mut send)
+                        == TimerRequest::Stop
+                    {
                         ticking = false;
                     }
                 }

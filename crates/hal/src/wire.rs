@@ -33,6 +33,7 @@
 //! A command is 16 bytes on the wire and a measurement 14, so a 1 kHz loop needs about
 //! 160 kbit/s each way (10 bits per byte): 230,400 baud at least, 460,800 for margin.
 
+pub mod analog;
 pub mod cobs;
 pub mod crc;
 pub mod device;
