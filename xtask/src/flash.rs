@@ -21,7 +21,7 @@ pub struct Options {
 
 /// Runs the task; returns every failure.
 pub fn run(opts: &Options) -> Vec<String> {
-    let elf = match tools::build_firmware(Some("stm32f4")) {
+    let elf = match tools::build_firmware(&["stm32f4"]) {
         Ok(e) => e,
         Err(e) => return e,
     };

@@ -8,15 +8,15 @@
 //! than a real 460,800 baud line, and in virtual time the board still sees one sample per
 //! millisecond (the wall clock runs a few times slower).
 
-use crate::tools::{self, QEMU};
-use std::io::{BufRead, BufReader};
+use crate::session::Session;
+use crate::tools::{self, Board};
 use std::path::PathBuf;
 use std::process::{Command, Stdio};
-use std::sync::mpsc;
-use std::time::Duration;
 
 /// Options passed through to `boucwen hil`.
 pub struct Options {
+    /// The board.
+    pub board: Board,
     /// Per-byte fault rate, both directions.
     pub inject_faults: Option<f64>,
     /// End with the JSON line.
@@ -46,10 +46,10 @@ fn build_cli() -> Result<PathBuf, String> {
 /// Runs the task; returns every failure.
 pub fn run(opts: &Options) -> Vec<String> {
     let mut failures = Vec::new();
-    if let Err(mut e) = tools::check(&[&QEMU]) {
+    if let Err(mut e) = tools::check(&[&tools::QEMU]) {
         failures.append(&mut e);
     }
-    let elf = match tools::build_firmware(None) {
+    let elf = match tools::build_firmware(&opts.board.qemu_features(&[])) {
         Ok(e) => Some(e),
         Err(mut e) => {
             failures.append(&mut e);
@@ -67,44 +67,11 @@ pub fn run(opts: &Options) -> Vec<String> {
         return failures;
     };
 
-    let mut qemu = tools::qemu_command(&elf, &[], "pty");
-    let mut child = match qemu.stdin(Stdio::null()).stdout(Stdio::piped()).stderr(Stdio::piped()).spawn() {
-        Ok(c) => c,
-        Err(e) => return vec![format!("cannot start {}: {e}", QEMU.path)],
+    let session = match Session::start(opts.board, &elf, false) {
+        Ok(s) => s,
+        Err(e) => return vec![e],
     };
-    // QEMU names the pseudo-terminal on stdout or stderr (depending on the version).
-    let (tx, rx) = mpsc::channel::<String>();
-    let mut readers = Vec::new();
-    for stream in [
-        child.stdout.take().map(|s| Box::new(s) as Box<dyn std::io::Read + Send>),
-        child.stderr.take().map(|s| Box::new(s) as Box<dyn std::io::Read + Send>),
-    ]
-    .into_iter()
-    .flatten()
-    {
-        let tx = tx.clone();
-        readers.push(std::thread::spawn(move || {
-            for line in BufReader::new(stream).lines().map_while(Result::ok) {
-                let _ = tx.send(line);
-            }
-        }));
-    }
-    drop(tx);
-    let mut pty = None;
-    let mut qemu_lines = Vec::new();
-    while let Ok(line) = rx.recv_timeout(Duration::from_secs(10)) {
-        if let Some(at) = line.find("/dev/pts/") {
-            let path: String = line[at..].chars().take_while(|c| !c.is_whitespace()).collect();
-            pty = Some(path);
-            break;
-        }
-        qemu_lines.push(line);
-    }
-    let Some(pty) = pty else {
-        let _ = child.kill();
-        let _ = child.wait();
-        return vec![format!("QEMU did not report its pseudo-terminal; it said: {}", qemu_lines.join(" | "))];
-    };
+    let pty = session.pty.clone();
     eprintln!("board on {pty}; running boucwen hil");
 
     let mut cmd = Command::new(&cli);
@@ -116,11 +83,7 @@ pub fn run(opts: &Options) -> Vec<String> {
         cmd.arg("--json");
     }
     let out = cmd.stdin(Stdio::null()).stderr(Stdio::inherit()).output();
-    let _ = child.kill();
-    let _ = child.wait();
-    for r in readers {
-        let _ = r.join();
-    }
+    drop(session);
     let out = match out {
         Ok(o) => o,
         Err(e) => return vec![format!("cannot run {}: {e}", cli.display())],

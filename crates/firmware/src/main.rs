@@ -103,10 +103,12 @@ fn stack_peak() -> u32 {
 }
 
 /// Counts the sample periods missed between two tick interrupts from the clock: the
-/// period in clock units is learnt from the shortest of the first intervals (the timer
-/// and the clock need not share a source), then any interval over 1.5 periods missed
-/// `round(interval / period) - 1` ticks.
+/// period in clock units is learnt as the median of the intervals between the 8th and the
+/// 40th tick after start-up (the timer and the clock need not share a source; a median
+/// ignores the odd interval stretched or shortened by a late interrupt), then any interval
+/// over 1.5 periods missed `round(interval / period) - 1` ticks.
 pub struct MissedTicks {
+    seen: [u32; Self::LEARN as usize],
     last: Option<u32>,
     per_1000us: u32,
     learning: u32,
@@ -114,10 +116,17 @@ pub struct MissedTicks {
 }
 
 impl MissedTicks {
-    const LEARN: u32 = 8;
+    const SKIP: u32 = 8;
+    const LEARN: u32 = 32;
 
     const fn new() -> Self {
-        Self { last: None, per_1000us: u32::MAX, learning: Self::LEARN, period_us: 1000 }
+        Self {
+            seen: [0; Self::LEARN as usize],
+            last: None,
+            per_1000us: u32::MAX,
+            learning: Self::SKIP + Self::LEARN,
+            period_us: 1000,
+        }
     }
 
     fn period_changed(&mut self, period_us: u32) {
@@ -130,8 +139,14 @@ impl MissedTicks {
         let interval = now.wrapping_sub(last);
         if self.learning > 0 {
             if self.period_us == 1000 {
-                self.per_1000us = self.per_1000us.min(interval);
+                if self.learning <= Self::LEARN {
+                    self.seen[(self.learning - 1) as usize] = interval;
+                }
                 self.learning -= 1;
+                if self.learning == 0 {
+                    self.seen.sort_unstable();
+                    self.per_1000us = self.seen[Self::LEARN as usize / 2];
+                }
             }
             return 0;
         }

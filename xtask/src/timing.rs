@@ -1,0 +1,171 @@
+//! `cargo xtask timing`: what the control interrupt costs, and whether it keeps its rate
+//! while the link is busy with line noise.
+//!
+//! The board runs the self-test's compensator (two cancelled harmonics, the heavier case)
+//! on its simulated actuator for [`SAMPLES`] ticks. Its transmitter is paced at the baud
+//! rate (the emulator build's per-byte delay), so its telemetry and its answers take the
+//! time they take on a real line. Meanwhile the host sends a burst of damaged frames
+//! (each a valid frame with one bit flipped, or cut short), which the board must decode,
+//! count and answer at its bounded rate. Afterwards the board's diagnostics give the
+//! ticks, the ticks missed (an interrupt that started more than 1.5 periods after the
+//! previous one), the interrupt's instructions (worst and mean, from the free-running
+//! clock calibrated against a spin loop under `-icount shift=0`) and the bad frames
+//! counted. Missed ticks fail the task.
+
+use crate::qemu::{CASES, frames, insns_per_unit};
+use crate::session::Session;
+use crate::tools::{self, Board};
+use boucwen_hal::transport::{self, Link};
+use boucwen_hal::wire::message::{Diagnostics, Mode, RunState, SafetyParams};
+use boucwen_hal::wire::{Decoder, Message, encode};
+use std::time::{Duration, Instant};
+
+/// Ticks of the run.
+pub const SAMPLES: u32 = 4000;
+
+/// A damaged copy of a measurement frame: one bit flipped (`i` odd) or the frame cut in
+/// half (`i` even), delimiter kept.
+fn damaged(i: u32) -> Result<Vec<u8>, String> {
+    let f = encode(i as u16, &Message::Measurement { k: i, y: i as f32 * 0.5 })
+        .map_err(|e| e.to_string())?
+        .to_vec();
+    let body = f.len() - 1;
+    let mut out = if i % 2 == 1 {
+        let mut g = f.clone();
+        let at = (i as usize * 7) % body;
+        let bit = 1u8 << (i % 7);
+        g[at] ^= if g[at] ^ bit == 0 { bit << 1 } else { bit };
+        g
+    } else {
+        let mut g = f[..body / 2].to_vec();
+        g.push(0);
+        g
+    };
+    out.truncate(f.len());
+    Ok(out)
+}
+
+fn request_ok<P: transport::Port>(link: &mut Link<P>, m: &Message) -> Result<(), String> {
+    let want = m.kind();
+    let r = link
+        .request(m, 3, Duration::from_secs(2), |seq, a| match a {
+            Message::Ack { kind, seq: s } if *kind == want && *s == seq => Some(Ok(())),
+            Message::Fault(f) if f.seq == seq => Some(Err(format!("{:?}: {}", f.code, f.text))),
+            _ => None,
+        })
+        .map_err(|e| e.to_string())?;
+    match r {
+        Some(Ok(())) => Ok(()),
+        Some(Err(e)) => Err(format!("the board refused kind 0x{want:02x}: {e}")),
+        None => Err(format!("no answer to kind 0x{want:02x}")),
+    }
+}
+
+/// Runs the task; prints the report (and the JSON line) and returns every failure.
+pub fn run(board: Board, burst: u32, json: bool) -> Vec<String> {
+    let mut failures = Vec::new();
+    if let Err(mut e) = tools::check(&[&tools::QEMU]) {
+        failures.append(&mut e);
+        return failures;
+    }
+    let elf = match tools::build_firmware(&board.qemu_features(&[])) {
+        Ok(e) => e,
+        Err(e) => return e,
+    };
+    let go = || -> Result<(Diagnostics, u32), String> {
+        let session = Session::start(board, &elf, true)?;
+        let port = transport::open_serial(&session.pty, crate::BAUD).map_err(|e| e.to_string())?;
+        let mut link = Link::new(port);
+        link.flush_peer().map_err(|e| e.to_string())?;
+        let quiet = SafetyParams { host_timeout_ms: 60_000, ..SafetyParams::DEFAULT };
+        request_ok(&mut link, &Message::SetSafety(quiet))?;
+        let mut dec = Decoder::new();
+        for &b in &frames(&CASES[1], SAMPLES)? {
+            if let Some(Ok(p)) = dec.push(b) {
+                if !matches!(p.msg, Message::Start { .. }) {
+                    request_ok(&mut link, &p.msg)?;
+                }
+            }
+        }
+        request_ok(&mut link, &Message::Start { mode: Mode::Simulated, samples: SAMPLES })?;
+        eprintln!("board on {}: {SAMPLES} ticks, {burst} damaged frames sent meanwhile", board.name());
+        // The burst, interleaved with reading so neither side's buffers fill.
+        let mut telemetry = 0u32;
+        let mut ended = false;
+        let handle = |m: &Message, telemetry: &mut u32, ended: &mut bool| match m {
+            Message::Telemetry { .. } => *telemetry += 1,
+            Message::Status(s) if s.state != RunState::Running as u8 => *ended = true,
+            _ => {}
+        };
+        for i in 0..burst {
+            link.send_raw(&damaged(i)?).map_err(|e| e.to_string())?;
+            while let Some(r) = link.recv(Instant::now()).map_err(|e| e.to_string())? {
+                if let Ok(p) = r {
+                    handle(&p.msg, &mut telemetry, &mut ended);
+                }
+            }
+        }
+        let until = Instant::now() + Duration::from_secs(120);
+        while !ended && Instant::now() < until {
+            match link.recv(Instant::now() + Duration::from_secs(10)).map_err(|e| e.to_string())? {
+                None => return Err(format!("the board went silent after {telemetry} telemetry frames")),
+                Some(Ok(p)) => handle(&p.msg, &mut telemetry, &mut ended),
+                Some(Err(_)) => {}
+            }
+        }
+        link.flush_peer().map_err(|e| e.to_string())?;
+        let d = link
+            .request(&Message::GetDiagnostics, 5, Duration::from_secs(2), |_, m| match m {
+                Message::Diagnostics(d) => Some(*d),
+                _ => None,
+            })
+            .map_err(|e| e.to_string())?
+            .ok_or("no diagnostics from the board")?;
+        Ok((d, telemetry))
+    };
+    let (d, telemetry) = match go() {
+        Ok(x) => x,
+        Err(e) => return vec![e],
+    };
+    let per = insns_per_unit(&d);
+    let overhead = d.clock_overhead_ticks as f64;
+    let isr_max = (d.isr_ticks_max as f64 - overhead) * per;
+    let isr_mean = (d.isr_ticks_sum as f64 / d.ticks.max(1) as f64 - overhead) * per;
+    let out = |s: String| if json { eprintln!("{s}") } else { println!("{s}") };
+    out(format!(
+        "{}: {} ticks since reset ({telemetry} telemetry frames of the {SAMPLES}-tick run received), {} missed",
+        board.name(),
+        d.ticks,
+        d.missed_ticks
+    ));
+    out(format!("control interrupt: {isr_mean:.1} instructions mean, {isr_max:.0} largest"));
+    out(format!(
+        "bad frames: {} counted ({burst} sent), {} answered, {} not answered (rate bound); {} frames not queued",
+        d.bad_frames,
+        d.bad_frames.saturating_sub(d.faults_suppressed),
+        d.faults_suppressed,
+        d.tx_dropped
+    ));
+    if json {
+        println!(
+            "{}",
+            serde_json::json!({
+                "ticks": d.ticks,
+                "missed_ticks": d.missed_ticks,
+                "isr_insns_max": isr_max.round(),
+                "isr_insns_mean": (isr_mean * 10.0).round() / 10.0,
+                "bad_frames": d.bad_frames,
+            })
+        );
+    }
+    if d.missed_ticks > 0 {
+        failures.push(format!("{} ticks missed", d.missed_ticks));
+    }
+    if telemetry < SAMPLES {
+        failures.push(format!("{telemetry} of {SAMPLES} telemetry frames received"));
+    }
+    if d.bad_frames == 0 {
+        failures.push("the board counted no bad frame: the burst did not reach it".into());
+    }
+    failures
+}
