@@ -27,7 +27,7 @@ use boucwen_hal::wire::analog::{AdcCode, DRIVE, DacCode, FrontEnd, SENSOR};
 use stm32f4xx_hal::pac as chip;
 use stm32f4xx_hal::prelude::*;
 use stm32f4xx_hal::serial::{Event as SerialEvent, Serial};
-use stm32f4xx_hal::{adc, rcc::Config as RccConfig, watchdog::IndependentWatchdog};
+use stm32f4xx_hal::{rcc::Config as RccConfig, watchdog::IndependentWatchdog};
 
 /// The board has an ADC and a DAC.
 pub const HAS_CONVERTERS: bool = true;
@@ -299,18 +299,24 @@ pub fn init(baud: u32, drive_v: f32) -> Parts {
         dac.enable();
     }
 
-    // The sensor: ADC1 channel 1 (PA1), one conversion per TIM2 CC2 rising edge.
-    let pa1 = gpioa.pa1.into_analog();
-    let cfg = adc::config::AdcConfig::default()
-        .resolution(adc::config::Resolution::Twelve)
-        .external_trigger(adc::config::TriggerMode::RisingEdge, adc::config::ExternalTrigger::Tim_2_cc_2);
-    let mut adc1 = adc::Adc::new(dp.ADC1, true, cfg, &mut rcc);
-    adc1.configure_channel(&pa1, adc::config::Sequence::One, adc::config::SampleTime::Cycles_15);
-    adc1.enable();
-    // The converters own the ADC's registers from here (the HAL object is set up).
-    core::mem::forget(adc1);
-    // SAFETY: ADC1's registers, configured above and read only by the tick interrupt.
-    let adc_regs = unsafe { chip::Peripherals::steal() }.ADC1;
+    // The sensor: ADC1 channel 1 (PA1), one conversion per TIM2 CC2 rising edge. Set up
+    // on the PAC's typed registers: the HAL's constructor calibrates against Vref by a
+    // software conversion and waits for it, which QEMU's ADC model never finishes.
+    let _pa1 = gpioa.pa1.into_analog();
+    {
+        use stm32f4xx_hal::rcc::{Enable, Reset};
+        chip::ADC1::enable(&mut rcc);
+        chip::ADC1::reset(&mut rcc);
+    }
+    let adc_regs = dp.ADC1;
+    adc_regs.smpr2().modify(|_, w| w.smp1().cycles15());
+    adc_regs.sqr1().modify(|_, w| w.l().set(0));
+    adc_regs.sqr3().modify(|_, w| unsafe { w.sq1().bits(1) });
+    adc_regs.cr2().modify(|_, w| {
+        w.extsel().tim2cc2();
+        w.exten().rising_edge();
+        w.adon().set_bit()
+    });
 
     let mut serial: Serial<chip::USART2> =
         Serial::new(dp.USART2, (gpioa.pa2, gpioa.pa3), baud.bps(), &mut rcc).unwrap_or_else(|_| {
