@@ -8,8 +8,8 @@
 //! between the check and `wfi` still wakes the core.
 
 use crate::board::{Board, RX, TICKS};
-use boucwen_hal::wire::Decoder;
-use boucwen_hal::wire::device::{Device, TimerRequest};
+use boucwen_link::Decoder;
+use boucwen_link::device::{Device, TimerRequest};
 use core::sync::atomic::Ordering;
 
 /// Serves the host forever.

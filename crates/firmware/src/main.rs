@@ -3,7 +3,7 @@
 //! The driver board's firmware: the boucwen compensator (`u_f` and the online odd-harmonic
 //! cancellation, `boucwen_core::compensator` in `f32`) run once per sample on a
 //! Cortex-M4F, parameters and samples exchanged with the host over the wire protocol of
-//! `boucwen_hal::wire`. `no_std`, no allocation; 64 KiB of flash and 16 KiB of RAM at
+//! `boucwen_link`. `no_std`, no allocation; 64 KiB of flash and 16 KiB of RAM at
 //! most (`memory.x`: the linker refuses more).
 //!
 //! | module | what |
@@ -36,7 +36,7 @@ mod selftest;
 use cortex_m_rt::entry;
 
 /// The UART's nominal rate (QEMU does not pace the UART; a real link needs this much for
-/// 1 kHz, see `boucwen_hal::wire`).
+/// 1 kHz, see `boucwen_link`).
 const BAUD: u32 = 460_800;
 
 /// Largest self-test frames file.

@@ -33,9 +33,9 @@
 use crate::board::{Board, Clock};
 use crate::say;
 use boucwen_core::Error;
-use boucwen_hal::wire::device::{ClosedLoop, Controller, OnChipPlant};
-use boucwen_hal::wire::message::{ControllerParams, Mode, OrcParams, PlantParams};
-use boucwen_hal::wire::{Decoder, Message};
+use boucwen_link::device::{ClosedLoop, Controller, OnChipPlant};
+use boucwen_link::message::{ControllerParams, Mode, OrcParams, PlantParams};
+use boucwen_link::{Decoder, Message};
 use core::hint::black_box;
 
 /// Instructions of the calibration spin loop (two per iteration: `subs`, `bne`).
@@ -71,14 +71,14 @@ impl Loop for ClosedLoop {
 }
 
 #[cfg(feature = "orc")]
-impl Loop for boucwen_hal::wire::device::OrcLoop {
+impl Loop for boucwen_link::device::OrcLoop {
     #[inline]
     fn control(&mut self) -> Result<f32, Error> {
-        boucwen_hal::wire::device::OrcLoop::control(self).map(|s| s.out.u)
+        boucwen_link::device::OrcLoop::control(self).map(|s| s.out.u)
     }
     #[inline]
     fn actuate(&mut self, u: f32) -> f32 {
-        boucwen_hal::wire::device::OrcLoop::actuate(self, u)
+        boucwen_link::device::OrcLoop::actuate(self, u)
     }
 }
 
@@ -176,7 +176,7 @@ pub fn run(board: &mut Board, frames: &[u8]) -> Result<(), Failure> {
         }
         #[cfg(feature = "orc")]
         Some(o) => {
-            let l = boucwen_hal::wire::device::OrcLoop::new(&f.controller, &o, &f.plant)
+            let l = boucwen_link::device::OrcLoop::new(&f.controller, &o, &f.plant)
                 .map_err(Failure::Params)?;
             say!("selftest orc");
             exercise(board, l, f.samples)
