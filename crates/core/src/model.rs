@@ -195,6 +195,12 @@ impl<T: Real, const P: usize> Default for ExtendedParams<T, P> {
 
 impl<T: Real> ExtendedParams<T, 3> {
     /// Eq. (3) as printed: `y[k] = y[k-1] + c1·y[k-2] + c2·y[k-3] + A1·u[k] - h[k]`.
+    ///
+    /// ```
+    /// use boucwen_core::model::{BoucWenParams, ExtendedParams};
+    /// let m = ExtendedParams::from_eq3(BoucWenParams::<f64>::default(), 0.2, -0.3);
+    /// assert_eq!(m.ar, [1.0, 0.2, -0.3]);
+    /// ```
     pub fn from_eq3(bw: BoucWenParams<T>, c1: T, c2: T) -> Self {
         Self { bw, ar: [T::one(), c1, c2] }
     }
@@ -331,6 +337,12 @@ pub struct HarmonicBranch<T, const Q: usize> {
 
 impl<T: Real, const Q: usize> HarmonicBranch<T, Q> {
     /// A branch of order `n` with zero weights.
+    ///
+    /// ```
+    /// use boucwen_core::model::HarmonicBranch;
+    /// let b = HarmonicBranch::<f64, 2>::new(3);
+    /// assert_eq!((b.order, b.alpha_s, b.alpha_c, b.ar), (3, 0.0, 0.0, [0.0; 2]));
+    /// ```
     pub fn new(order: u32) -> Self {
         Self { order, alpha_s: T::zero(), alpha_c: T::zero(), ar: [T::zero(); Q] }
     }

@@ -49,11 +49,25 @@ pub struct RlsConfig<T> {
 
 impl<T: Real> RlsConfig<T> {
     /// The paper's setting: `λ = 1`, `P(0) = I`.
+    ///
+    /// ```
+    /// use boucwen_core::rls::RlsConfig;
+    /// let c = RlsConfig::<f64>::paper();
+    /// assert_eq!((c.lambda, c.p0), (1.0, 1.0));
+    /// assert!(c.validate().is_ok());
+    /// ```
     pub fn paper() -> Self {
         Self { lambda: T::one(), p0: T::one(), p_max: T::lit(1e3) }
     }
 
     /// Forgetting factor `lambda`, `P(0) = p0·I`, windup ceiling `p_max = 10³·p0`.
+    ///
+    /// ```
+    /// use boucwen_core::rls::RlsConfig;
+    /// let c = RlsConfig::with_forgetting(0.999_f64, 1e-2);
+    /// assert_eq!((c.lambda, c.p0, c.p_max), (0.999, 1e-2, 10.0));
+    /// assert!(RlsConfig::with_forgetting(1.5_f64, 1.0).validate().is_err());
+    /// ```
     pub fn with_forgetting(lambda: T, p0: T) -> Self {
         Self { lambda, p0, p_max: T::lit(1e3) * p0 }
     }
