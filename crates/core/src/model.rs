@@ -87,10 +87,15 @@ impl<T: Real> BoucWenParams<T> {
 }
 
 impl<T: Real> BoucWenParams<T> {
-    /// The range `[h_lo, h_hi]` that `h` cannot leave once inside (0 is inside): with
-    /// `γ + β > 0` each branch saturates where its slope vanishes,
-    /// `h_hi = (A + A0)/(γ + β)` rising and `h_lo = -(A - A0)/(γ + β)` falling. `None` when
-    /// `γ + β ≤ 0` (`h` is unbounded).
+    /// The range `[h_lo, h_hi]` where each branch saturates (its slope vanishes):
+    /// `h_hi = (A + A0)/(γ + β)` rising and `h_lo = -(A - A0)/(γ + β)` falling, 0 inside.
+    /// `None` when `γ + β ≤ 0` (`h` is unbounded).
+    ///
+    /// `h` cannot leave the range once inside when `A ≥ |A0|`, `γ, β ≥ 0`, either `A0 = 0`
+    /// or `β ≥ γ`, and each step of the input is at most `1/(γ + β)` (then every update is
+    /// a convex combination of `h` and an end of the range; the property tests check it).
+    /// With `γ > β` and `A0 ≠ 0` one branch's slope turns negative inside the range and an
+    /// input moving along that branch carries `h` out of it without bound.
     pub fn h_range(&self) -> Option<(T, T)> {
         let s = self.gamma + self.beta;
         if !(s > T::zero()) {
