@@ -286,6 +286,7 @@ pub struct CompensatorConfig<T, const P: usize, const M: usize> {
 
 impl<T: Real, const P: usize, const M: usize> CompensatorConfig<T, P, M> {
     /// Checks every part.
+    #[allow(clippy::neg_cmp_op_on_partial_ord, reason = "NaN must fail the checks, as `!(x > 0)` does")]
     pub fn validate(&self) -> Result<(), Error> {
         use crate::model::Model;
         self.model.validate()?;

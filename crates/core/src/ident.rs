@@ -263,14 +263,12 @@ impl<T: Real, const P: usize, const Q: usize, const M: usize, const N: usize> Id
             x[P + 1 + i] = -sens[i];
         }
         let mut sc = [(T::zero(), T::zero()); M];
-        for m in 0..M {
+        for (m, scm) in sc.iter_mut().enumerate() {
             let base = Layout::<P, Q>::branch(m);
-            for j in 0..Q {
-                x[base + j] = self.branch_past[m][j];
-            }
-            sc[m] = sin_cos::<T>(self.phase.wrapping_mul(self.orders[m] as u64));
-            x[base + Q] = sc[m].0;
-            x[base + Q + 1] = sc[m].1;
+            x.as_mut_slice()[base..base + Q].copy_from_slice(&self.branch_past[m]);
+            *scm = sin_cos::<T>(self.phase.wrapping_mul(self.orders[m] as u64));
+            x[base + Q] = scm.0;
+            x[base + Q + 1] = scm.1;
         }
 
         // Prediction with the current estimate.
@@ -283,7 +281,7 @@ impl<T: Real, const P: usize, const Q: usize, const M: usize, const N: usize> Id
         for j in 0..P {
             y_hat += th[j] * self.y_past[j];
         }
-        for m in (0..M).map(|m| Layout::<P, Q>::branch(m)) {
+        for m in (0..M).map(Layout::<P, Q>::branch) {
             for j in 0..Q + 2 {
                 y_hat += th[m + j] * x[m + j];
             }
@@ -301,9 +299,9 @@ impl<T: Real, const P: usize, const Q: usize, const M: usize, const N: usize> Id
             Mode::Gradient => h_pred,
         };
         self.sens = sens;
-        for m in 0..M {
+        for (m, &(s, c)) in sc.iter().enumerate() {
             let base = Layout::<P, Q>::branch(m);
-            let mut yn = th[base + Q] * sc[m].0 + th[base + Q + 1] * sc[m].1;
+            let mut yn = th[base + Q] * s + th[base + Q + 1] * c;
             for j in 0..Q {
                 yn += th[base + j] * self.branch_past[m][j];
             }

@@ -96,6 +96,7 @@ impl<T: Real> BoucWenParams<T> {
     /// a convex combination of `h` and an end of the range; the property tests check it).
     /// With `γ > β` and `A0 ≠ 0` one branch's slope turns negative inside the range and an
     /// input moving along that branch carries `h` out of it without bound.
+    #[allow(clippy::neg_cmp_op_on_partial_ord, reason = "NaN must fail the check, as `!(s > 0)` does")]
     pub fn h_range(&self) -> Option<(T, T)> {
         let s = self.gamma + self.beta;
         if !(s > T::zero()) {
@@ -216,8 +217,8 @@ impl<T: Real, const P: usize> ExtendedParams<T, P> {
     #[inline(always)]
     pub fn ar_sum(&self, past: &[T; P]) -> T {
         let mut acc = T::zero();
-        for j in 0..P {
-            acc += self.ar[j] * past[j];
+        for (&a, &y) in self.ar.iter().zip(past) {
+            acc += a * y;
         }
         acc
     }
@@ -396,8 +397,8 @@ impl<T: Real, const P: usize, const Q: usize, const M: usize> Model<T> for Enhan
             let (s, c) = sin_cos::<T>(state.phase.wrapping_mul(br.order as u64));
             let past = &mut state.branch_past[m];
             let mut yn = br.alpha_s * s + br.alpha_c * c;
-            for j in 0..Q {
-                yn += br.ar[j] * past[j];
+            for (&c, &p) in br.ar.iter().zip(past.iter()) {
+                yn += c * p;
             }
             push_front(past, yn);
             state.branch_out[m] = yn;

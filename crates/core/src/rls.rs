@@ -73,6 +73,7 @@ impl<T: Real> RlsConfig<T> {
     }
 
     /// Checks the ranges.
+    #[allow(clippy::neg_cmp_op_on_partial_ord, reason = "NaN must fail the checks, as `!(x > 0)` does")]
     pub fn validate(&self) -> Result<(), Error> {
         if !self.lambda.is_finite() {
             return Err(Error::NonFinite("forgetting factor"));
@@ -351,19 +352,19 @@ mod tests {
         }
         fn update(&mut self, x: &[f64; N], y: f64) {
             let mut px = [0.0; N];
-            for i in 0..N {
-                for j in 0..N {
-                    px[i] += self.p[i][j] * x[j];
+            for (pxi, row) in px.iter_mut().zip(&self.p) {
+                for (pij, xj) in row.iter().zip(x) {
+                    *pxi += pij * xj;
                 }
             }
             let denom = self.lambda + (0..N).map(|i| x[i] * px[i]).sum::<f64>();
             let e = y - (0..N).map(|i| self.theta[i] * x[i]).sum::<f64>();
-            for i in 0..N {
-                self.theta[i] += px[i] / denom * e;
+            for (th, pxi) in self.theta.iter_mut().zip(&px) {
+                *th += pxi / denom * e;
             }
-            for i in 0..N {
-                for j in 0..N {
-                    self.p[i][j] = (self.p[i][j] - px[i] * px[j] / denom) / self.lambda;
+            for (row, pxi) in self.p.iter_mut().zip(&px) {
+                for (pij, pxj) in row.iter_mut().zip(&px) {
+                    *pij = (*pij - pxi * pxj / denom) / self.lambda;
                 }
             }
         }
@@ -493,8 +494,8 @@ mod tests {
             }
         }
         assert!(worst < 1e-3, "largest f32/f64 parameter gap {worst}");
-        for i in 0..N {
-            assert_close(r64.theta()[i], truth[i], 2e-3);
+        for (est, want) in r64.theta().iter().zip(&truth) {
+            assert_close(*est, *want, 2e-3);
         }
         assert_eq!(r32.stats().resets, 0);
     }

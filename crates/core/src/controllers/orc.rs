@@ -64,6 +64,7 @@ pub fn half_period(drive: Oscillator) -> Result<(usize, f64), Error> {
 impl<T: Real> OrcConfig<T> {
     /// Checks the gains and that the delay line of capacity `ncap` holds the half period
     /// with this lead: `L0 ≥ m + 2` and `L0 + 2 ≤ ncap`.
+    #[allow(clippy::neg_cmp_op_on_partial_ord, reason = "NaN must fail the checks, as `!(x > 0)` does")]
     pub fn validate(&self, ncap: usize) -> Result<(), Error> {
         finite(self.q_coeff, "ORC Q coefficient")?;
         finite(self.learning_gain, "ORC learning gain")?;

@@ -22,6 +22,7 @@ pub struct PiConfig<T> {
 
 impl<T: Real> PiConfig<T> {
     /// Checks every field: finite, `Ts > 0`, gains of one sign (`Kp·Ki ≥ 0`) and not both 0.
+    #[allow(clippy::neg_cmp_op_on_partial_ord, reason = "NaN must fail the checks, as `!(x > 0)` does")]
     pub fn validate(&self) -> Result<(), Error> {
         finite(self.kp, "PI Kp")?;
         finite(self.ki_per_s, "PI Ki")?;

@@ -136,6 +136,7 @@ fn grid_point<T: Real>(i: usize) -> (Complex<T>, T) {
 }
 
 /// The smallest `x ≥ 0` with `|c + x·b|² < r2`, given `|c|² ≥ r2` (`None`: there is none).
+#[allow(clippy::neg_cmp_op_on_partial_ord, reason = "NaN must fail the checks, as `!(x > 0)` does")]
 fn first_violation<T: Real>(c: Complex<T>, b: Complex<T>, r2: T) -> Option<T> {
     let bb = b.norm_sqr();
     if !(bb > T::zero()) {
@@ -175,6 +176,7 @@ fn gain_factors<T: Real, const P: usize>(model: &ExtendedParams<T, P>) -> (T, T)
 const KP_STEPS: usize = 16;
 
 /// The PI of the module docs' tuning rule, from the identified model alone.
+#[allow(clippy::neg_cmp_op_on_partial_ord, reason = "NaN must fail the checks, as `!(x > 0)` does")]
 pub fn tune_pi<T: Real, const P: usize>(
     model: &ExtendedParams<T, P>,
     ts_s: T,
@@ -275,6 +277,7 @@ pub fn tune_pi<T: Real, const P: usize>(
 
 /// The ORC of the module docs' tuning rule on the PI `pi` (from [`tune_pi`] or the
 /// caller's), for the reference `drive`.
+#[allow(clippy::neg_cmp_op_on_partial_ord, reason = "NaN must fail the checks, as `!(x > 0)` does")]
 pub fn tune_orc<T: Real, const P: usize>(
     model: &ExtendedParams<T, P>,
     pi: &PiConfig<T>,
@@ -332,13 +335,13 @@ pub fn tune_orc<T: Real, const P: usize>(
                 }
                 let g2inv = (T::one() / g2 - T::one()).max(T::zero());
                 let mut w = t;
-                for m in 0..n_lead {
+                for k_am in k_max[ia].iter_mut().take(n_lead) {
                     let ww = w.norm_sqr();
                     if ww > T::zero() {
                         let p = w.re;
                         let disc = (p * p + ww * g2inv).sqrt();
                         let x = if p >= T::zero() { (p + disc) / ww } else { g2inv / (disc - p) };
-                        k_max[ia][m] = k_max[ia][m].min(x);
+                        *k_am = k_am.min(x);
                     }
                     w *= z;
                 }
@@ -356,8 +359,7 @@ pub fn tune_orc<T: Real, const P: usize>(
     };
     let mut best: Option<(T, usize, usize, T, [T; 3])> = None;
     for (ia, &a) in TUNE_Q_COEFFS.iter().enumerate() {
-        for m in 0..n_lead {
-            let km = k_max[ia][m];
+        for (m, &km) in k_max[ia].iter().enumerate().take(n_lead) {
             if !(km > T::zero()) {
                 continue;
             }
