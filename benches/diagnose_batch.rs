@@ -3,7 +3,7 @@
 //! Run with `cargo bench --bench diagnose_batch` (options after `--`: `--per-effect N`,
 //! default 40, and `--seed S`, default 1000, the first seed; `--verbose` prints every case;
 //! `--dump DIR` writes every record there as `EFFECT-SEED.csv`, for `boucwen diagnose`).
-//! For every effect of [`EFFECTS`] it draws `N` cases ([`boucwen_cli::hidden::Case`],
+//! For every effect of [`EFFECTS`] it draws `N` cases ([`boucwen_lab::hidden::Case`],
 //! seeds `S..S+N`), records each on the virtual bimorph and diagnoses it with the default
 //! thresholds. A diagnosis is right when:
 //! - a hidden harmonic or drift: the first finding names it (kind, order, frequency within
@@ -14,8 +14,8 @@
 //! with the wall time. This is a measurement, not a test: it asserts nothing and exits 0
 //! unless a case cannot be drawn or recorded.
 
-use boucwen_cli::diagnose::{self, Diagnosis, Kind, Thresholds};
-use boucwen_cli::hidden::{Case, Effect};
+use boucwen_lab::diagnose::{self, Diagnosis, Kind, Thresholds};
+use boucwen_lab::hidden::{Case, Effect};
 use rayon::prelude::*;
 use std::time::Instant;
 

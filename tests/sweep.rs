@@ -5,8 +5,8 @@
 //!
 //! The harmonic orders are not given to the sweep: it finds them in the data.
 
-use boucwen_cli::report;
-use boucwen_cli::sweep::{self, Row, SweepOptions, SweepResult};
+use boucwen_lab::report;
+use boucwen_lab::sweep::{self, Row, SweepOptions, SweepResult};
 use std::sync::OnceLock;
 
 fn result() -> &'static SweepResult {

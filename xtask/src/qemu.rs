@@ -3,7 +3,7 @@
 //!
 //! The scenario (below) is encoded with the wire protocol into a frames file that the
 //! firmware reads through semihosting; the host decodes the *same bytes* and runs the same
-//! `boucwen_hal::wire::device::ClosedLoop` in `f32`. Every `u[k]` and `y[k]` the firmware
+//! `boucwen_link::device::ClosedLoop` in `f32`. Every `u[k]` and `y[k]` the firmware
 //! prints must equal the host's bit for bit.
 //!
 //! Instructions per control step: QEMU runs with `-icount shift=0` (one instruction per
@@ -19,12 +19,13 @@ use boucwen_core::controllers::{TuneOptions, tune};
 use boucwen_core::model::{BoucWenParams, ExtendedParams, HarmonicBranch};
 use boucwen_core::rls::RlsConfig;
 use boucwen_hal::transport::{self, Link};
-use boucwen_hal::wire::Packet;
-use boucwen_hal::wire::analog::NoFrontEnd;
-use boucwen_hal::wire::device::{Device, Reference};
-use boucwen_hal::wire::message::{ControllerParams, Mode, OrcParams, PlantParams, ReferenceSpec};
-use boucwen_hal::wire::message::{Diagnostics, RunState, SafetyParams};
-use boucwen_hal::wire::{self, Decoder, Message};
+use boucwen_lab::design::{ReferenceSpec, controller_params, orc_params};
+use boucwen_link::Packet;
+use boucwen_link::analog::NoFrontEnd;
+use boucwen_link::device::{Device, Reference};
+use boucwen_link::message::{ControllerParams, Mode, OrcParams, PlantParams};
+use boucwen_link::message::{Diagnostics, RunState, SafetyParams};
+use boucwen_link::{self as wire, Decoder, Message};
 use std::path::Path;
 use std::time::Duration;
 use std::time::Instant;
@@ -90,7 +91,7 @@ pub fn scenario(case: &Case) -> Result<(ControllerParams, PlantParams, Option<Or
         })
         .collect();
     let reference = ReferenceSpec { freq_hz: case.drive_hz, amplitude_um: 20.0, fade_s: 0.5 };
-    let controller = ControllerParams::from_design(
+    let controller = controller_params(
         &ext,
         &harmonics,
         RlsConfig::with_forgetting(0.999, 1e-2),
@@ -112,7 +113,7 @@ pub fn scenario(case: &Case) -> Result<(ControllerParams, PlantParams, Option<Or
     let orc = if case.orc {
         let t = tune(&ext, controller.drive, TS, Saturation::symmetric(10.0), &TuneOptions::default())
             .map_err(|e| format!("{}: tuning: {e}", case.name))?;
-        Some(OrcParams::from_design(&t.pi.pi, &t.orc.orc).map_err(|e| format!("{}: {e}", case.name))?)
+        Some(orc_params(&t.pi.pi, &t.orc.orc).map_err(|e| format!("{}: {e}", case.name))?)
     } else {
         None
     };

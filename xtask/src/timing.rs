@@ -16,8 +16,8 @@ use crate::qemu::{CASES, frames, insns_per_unit};
 use crate::session::Session;
 use crate::tools::{self, Board};
 use boucwen_hal::transport::{self, Link};
-use boucwen_hal::wire::message::{Diagnostics, Mode, RunState, SafetyParams};
-use boucwen_hal::wire::{Decoder, Message, encode};
+use boucwen_link::message::{Diagnostics, Mode, RunState, SafetyParams};
+use boucwen_link::{Decoder, Message, encode};
 use std::time::{Duration, Instant};
 
 /// Ticks of the run.

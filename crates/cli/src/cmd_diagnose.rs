@@ -1,9 +1,9 @@
 //! `boucwen diagnose DATA.csv [--json] [--report DIR]`: what the extended model gets wrong
 //! on a record, the cause, the term that removes it and the gain (see
-//! [`boucwen_cli::diagnose`]).
+//! [`boucwen_lab::diagnose`]).
 
-use boucwen_cli::{diagnose, report};
-use boucwen_hal::record::Record;
+use boucwen_lab::record::Record;
+use boucwen_lab::{diagnose, report};
 use std::path::PathBuf;
 
 #[derive(clap::Args)]

@@ -3,7 +3,7 @@
 //! The board on `PATH` (the firmware, on a real board or in QEMU on a pseudo-terminal)
 //! runs the compensator; the host is its actuator: the virtual bimorph
 //! (`--scenario`, the paper's actuator by default). Before the run the host designs the
-//! compensator as the sweep does, on the virtual bimorph itself:
+//! compensator on the virtual bimorph itself (`boucwen_lab::design::design_on_plant`):
 //! 1. a record of the drive `sin(2π f t)` (`--amplitude` V, 6 s) is fitted by the
 //!    extended model (output error, an invertible loop; no input delay, the board's
 //!    compensator does not preview);
@@ -17,12 +17,9 @@
 //! controller reaches in-process without a link. Exits non-zero when a sample is not
 //! accounted for or a command differs from the host's shadow controller.
 
-use boucwen_cli::fit::{self, HostModel, ModelSpec, OeOptions};
-use boucwen_cli::{analysis, experiment, sweep};
-use boucwen_core::compensator::{HarmonicSpec, PhaseRule, Saturation};
-use boucwen_core::rls::RlsConfig;
+use boucwen_core::compensator::Saturation;
 use boucwen_hal::hil::{self, HilOptions};
-use boucwen_hal::wire::message::{ControllerParams, ReferenceSpec};
+use boucwen_lab::design::{PlantDesign, design_on_plant};
 use boucwen_sim::{Bimorph, Scenario};
 use std::path::PathBuf;
 
@@ -79,8 +76,17 @@ pub fn run(a: HilArgs) -> Result<(), String> {
     if !(a.amplitude.is_finite() && a.amplitude > 0.0 && a.amplitude <= 100.0) {
         return Err(format!("--amplitude {}: above 0 and at most 100 V", a.amplitude));
     }
-    let (params, design) = design(&scenario, a.freq, a.amplitude)?;
+    let mut bimorph = Bimorph::new(&scenario).map_err(|e| e.to_string())?;
+    let spec = PlantDesign {
+        freq_hz: a.freq,
+        amplitude_v: a.amplitude,
+        seconds: IDENT_SECONDS,
+        saturation: Saturation::symmetric(10.0),
+    };
+    let design = design_on_plant(&mut bimorph, &spec)
+        .map_err(|e| format!("designing on the virtual bimorph at {} Hz: {e}", a.freq))?;
     eprintln!("{design}");
+    let params = design.params;
     let opts = HilOptions { fault_rate: rate, seed: a.seed, ..HilOptions::new(a.samples) };
     let sim = |s: &Scenario| Bimorph::new(s).map_err(|e| e.to_string());
     let ideal = hil::without_link(&mut sim(&scenario)?, &params, a.samples, opts.settle_samples)
@@ -95,64 +101,4 @@ pub fn run(a: HilArgs) -> Result<(), String> {
         println!("{}", report.json());
     }
     verdict.map_err(|e| format!("{}: {e}", a.port))
-}
-
-/// The board's parameters for the scenario at `f`, and a line saying what was designed.
-fn design(scenario: &Scenario, f: f64, amplitude: f64) -> Result<(ControllerParams, String), String> {
-    let ts = scenario.sampling.ts_s;
-    let n = (IDENT_SECONDS / ts).round() as usize;
-    let u = experiment::sine(amplitude, f, ts, n).map_err(|e| e.to_string())?;
-    let y = Bimorph::new(scenario).and_then(|mut b| b.run(&u)).map_err(|e| e.to_string())?;
-    let split = n / 2;
-    let opt = OeOptions { require_invertible: true, ..OeOptions::default() };
-    let model: HostModel = fit::fit_oe(&u, &y, ts, split, &ModelSpec::extended(f), &[], &opt)
-        .map_err(|e| format!("identifying the virtual bimorph at {f} Hz: {e}"))?
-        .model;
-    let alpha = experiment::eq25_amplitude(&u, &y);
-    let settings = experiment::CompensationSettings::default();
-    let params = |h: &[HarmonicSpec<f64>]| {
-        ControllerParams::from_design(
-            &model.ext,
-            h,
-            RlsConfig::with_forgetting(settings.lambda, settings.p0),
-            Saturation::symmetric(10.0),
-            settings.uc_max,
-            ReferenceSpec { freq_hz: f, amplitude_um: alpha, fade_s: experiment::FADE_IN_S },
-            ts,
-        )
-        .map_err(|e| format!("compensator for the board: {e}"))
-    };
-    // u_f alone in-process: which odd harmonic stands out in its tracking error?
-    let uf = params(&[])?;
-    let mut plant = Bimorph::new(scenario).map_err(|e| e.to_string())?;
-    let mut c = boucwen_hal::wire::device::Controller::new(&uf).map_err(|e| e.to_string())?;
-    let (mut y_prev, mut err) = (None, Vec::with_capacity(n));
-    for _ in 0..n {
-        let s = c.step(y_prev).map_err(|e| e.to_string())?;
-        let yk = boucwen_hal::plant::Plant::step(&mut plant, s.out.u as f64).map_err(|e| e.to_string())?;
-        y_prev = Some(yk as f32);
-        err.push(yk - s.d as f64);
-    }
-    let tail = &err[n / 2..];
-    let m = analysis::whole_periods(tail.len(), f, ts);
-    let order = sweep::dominant_odd_harmonic(
-        &tail[..m],
-        f,
-        ts,
-        sweep::MIN_HARMONIC_SHARE,
-        sweep::MIN_CANCEL_REL * alpha,
-    )
-    .map(|(o, _)| o);
-    let harmonics: Vec<HarmonicSpec<f64>> = order
-        .into_iter()
-        .flat_map(|o| experiment::model_harmonics(&model, &[o], f, ts, PhaseRule::Model))
-        .collect();
-    let line = format!(
-        "compensator for {f} Hz: extended model fitted on the virtual bimorph, alpha {alpha:.2} µm, {}",
-        match order {
-            Some(o) => format!("cancelling the harmonic of order {o} at {:.0} Hz", o as f64 * f),
-            None => "no harmonic stands out: u_f alone".into(),
-        }
-    );
-    Ok((params(&harmonics)?, line))
 }

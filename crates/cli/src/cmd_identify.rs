@@ -1,15 +1,15 @@
 //! `boucwen identify DATA.csv`: fit a model on the first part of a record and report its
 //! parameters and its free-run RMS error on the rest.
 //!
-//! `--method oe` (default) fits the free-run (output) error ([`boucwen_cli::fit::fit_oe`]);
+//! `--method oe` (default) fits the free-run (output) error ([`boucwen_lab::fit::fit_oe`]);
 //! `--method rls` runs the paper's section 3 RLS procedure
-//! ([`boucwen_cli::fit::fit_paper_rls`], at most one branch). `--model extended` (default)
+//! ([`boucwen_lab::fit::fit_paper_rls`], at most one branch). `--model extended` (default)
 //! or `enhanced`, whose branches are `--harmonics` or, if not given, the odd harmonic that
 //! stands out in the fitted part of the output (3 if none does).
 
 use crate::cmd_diagnose::read_for_fit;
-use boucwen_cli::fit::{self, HostModel, ModelSpec, OeOptions};
-use boucwen_cli::{analysis, diagnose, sweep};
+use boucwen_lab::fit::{self, HostModel, ModelSpec, OeOptions};
+use boucwen_lab::{analysis, diagnose, sweep};
 use std::path::PathBuf;
 
 #[derive(Clone, Copy, PartialEq, Eq, clap::ValueEnum)]

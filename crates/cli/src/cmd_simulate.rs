@@ -4,8 +4,8 @@
 //! (`--input FILE --column NAME`). A drive file needs a header row; if it has a `t` column,
 //! its sample interval must be the scenario's. The record (`t,u,y`) is written atomically.
 
-use boucwen_cli::{analysis, experiment};
-use boucwen_hal::record::Record;
+use boucwen_lab::record::Record;
+use boucwen_lab::{analysis, experiment};
 use boucwen_sim::{Bimorph, Scenario};
 use std::path::{Path, PathBuf};
 

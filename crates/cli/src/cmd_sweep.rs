@@ -1,8 +1,8 @@
 //! `boucwen sweep`: the paper's identification and compensation experiments over a frequency
 //! range on the virtual bimorph.
 
-use boucwen_cli::report;
-use boucwen_cli::sweep::{self, HarmonicChoice, ResponseSource, SweepOptions};
+use boucwen_lab::report;
+use boucwen_lab::sweep::{self, HarmonicChoice, ResponseSource, SweepOptions};
 use boucwen_sim::Scenario;
 use clap::ValueEnum;
 use std::io::IsTerminal;

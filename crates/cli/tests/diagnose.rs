@@ -1,7 +1,7 @@
 //! `boucwen diagnose` and `boucwen identify` end to end: a record with a hidden odd
 //! harmonic written to CSV, the report on the terminal, as JSON and as a page; bad input.
 
-use boucwen_cli::hidden::{Case, Effect};
+use boucwen_lab::hidden::{Case, Effect};
 use std::path::PathBuf;
 use std::process::Command;
 

@@ -1,7 +1,7 @@
 //! `boucwen simulate` end to end: a sine through the virtual bimorph, the record read back,
 //! the same drive from a CSV column, and bad input.
 
-use boucwen_hal::record::Record;
+use boucwen_lab::record::Record;
 use std::path::PathBuf;
 use std::process::Command;
 

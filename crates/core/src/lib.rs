@@ -15,6 +15,8 @@
 //! | [`ident`] | eqs. (8)–(12), section 3 | the regressors: the paper's running sums, or the exact prediction-error gradient |
 //! | [`compensator`] | eqs. (16)–(23) | direct inverse `u_f`, harmonic cancellation, output saturation |
 //! | [`signal`] | eqs. (4), (5), (13), (24) | phase accumulator and sin/cos that are bit-identical on every target |
+//! | [`controllers`] | (peers) | open loop, PI, Li et al.'s repetitive controller, their tuning rule, and the [`Controller`] trait |
+//! | [`plant`] | | the [`Plant`] trait: drive in, measurement out |
 //!
 //! ## Where the code departs from the paper, and why
 //!
@@ -59,6 +61,7 @@ pub mod controllers;
 pub mod error;
 pub mod ident;
 pub mod model;
+pub mod plant;
 pub mod real;
 pub mod rls;
 pub mod signal;
@@ -66,5 +69,7 @@ pub mod signal;
 #[cfg(test)]
 pub(crate) mod testing;
 
+pub use controllers::Controller;
 pub use error::Error;
+pub use plant::Plant;
 pub use real::Real;

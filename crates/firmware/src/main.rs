@@ -3,7 +3,7 @@
 //! The driver board's firmware: the boucwen compensator (`u_f` and the online odd-harmonic
 //! cancellation, `boucwen_core::compensator` in `f32`) run in the sample timer's interrupt
 //! of a Cortex-M4F, parameters and samples exchanged with the host over the wire protocol
-//! of `boucwen_hal::wire`. `no_std`, no allocation; 64 KiB of flash and 16 KiB of RAM at
+//! of `boucwen_link`. `no_std`, no allocation; 64 KiB of flash and 16 KiB of RAM at
 //! most (`memory.x`: the linker refuses more).
 //!
 //! ## Tasks (RTIC 2)
@@ -43,7 +43,7 @@ mod ring;
 use core::sync::atomic::{AtomicU32, Ordering};
 use ring::ByteRing;
 
-/// The UART's rate: a real link needs this much for 1 kHz (see `boucwen_hal::wire`).
+/// The UART's rate: a real link needs this much for 1 kHz (see `boucwen_link`).
 pub const BAUD: u32 = 460_800;
 
 /// Bytes received, waiting for `idle`.
@@ -159,8 +159,8 @@ impl MissedTicks {
 #[rtic::app(device = crate::board::pac, peripherals = false)]
 mod app {
     use super::*;
-    use boucwen_hal::wire::Decoder;
-    use boucwen_hal::wire::device::{Device, TimerRequest};
+    use boucwen_link::Decoder;
+    use boucwen_link::device::{Device, TimerRequest};
 
     #[shared]
     struct Shared {
@@ -202,7 +202,7 @@ mod app {
         d.calib_insns = 2 * SPIN_ITERATIONS;
         d.calib_ticks = t1.wrapping_sub(t0);
         d.clock_overhead_ticks = clock().wrapping_sub(t2);
-        let reason = if watchdog_reset { Some(boucwen_hal::wire::message::SafeReason::Watchdog) } else { saved_reason };
+        let reason = if watchdog_reset { Some(boucwen_link::message::SafeReason::Watchdog) } else { saved_reason };
         if let Some(r) = reason {
             device.begin_safe_state(r, saved_drive);
         }
@@ -301,6 +301,6 @@ mod app {
 fn panic(_info: &core::panic::PanicInfo) -> ! {
     // The drive of the last tick is in the record; add why, and start again: the next
     // start ramps the drive from there to 0 V and reports the panic.
-    persist::store_reason(boucwen_hal::wire::message::SafeReason::Panic);
+    persist::store_reason(boucwen_link::message::SafeReason::Panic);
     cortex_m::peripheral::SCB::sys_reset()
 }

@@ -6,7 +6,7 @@
 //! (a record with a bad checksum, as after power-on, is no record), so the board can ramp
 //! the drive from where it was to 0 V and report why.
 
-use boucwen_hal::wire::message::SafeReason;
+use boucwen_link::message::SafeReason;
 use core::mem::MaybeUninit;
 use core::sync::atomic::{Ordering, compiler_fence};
 

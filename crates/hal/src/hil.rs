@@ -1,6 +1,6 @@
 //! Hardware in the loop: the board computes `u[k]` every sample, the host is its actuator.
 //!
-//! The host configures the board ([`crate::wire::message::ControllerParams`]), starts a
+//! The host configures the board ([`boucwen_link::message::ControllerParams`]), starts a
 //! control run of `n` samples and then, for every `Command{k, u[k]}` the board sends on its
 //! own sample clock, applies `u[k]` to a [`Plant`] (the virtual bimorph, a model, or a
 //! real actuator behind it) and sends back `Measurement{k, y[k]}`, which the board uses at
@@ -25,16 +25,16 @@
 //! host learnt sample by sample ([`HilReport::samples_accounted`]).
 //!
 //! ## Shadow check
-//! The host runs the same controller ([`crate::wire::device::Controller`], `f32`, the
+//! The host runs the same controller ([`boucwen_link::device::Controller`], `f32`, the
 //! same code as the firmware) fed exactly what the board reports it used, and compares
 //! every command it receives with it bit for bit ([`HilReport::shadow_mismatches`]). A
 //! corrupted frame that slipped through the checks, or a firmware that computes something
 //! else, shows there.
 
-use crate::plant::{Plant, PlantError};
 use crate::transport::{FaultCounts, Link, LinkStats, Port, TransportError};
-use crate::wire::device::{Controller, Reference};
-use crate::wire::message::{ControllerParams, Fault, Message, Mode, RunState, Status};
+use boucwen_core::Plant;
+use boucwen_link::device::{Controller, Reference};
+use boucwen_link::message::{ControllerParams, Fault, Message, Mode, RunState, Status};
 use std::fmt;
 use std::time::{Duration, Instant};
 
@@ -172,7 +172,12 @@ pub enum HilError {
         port: String,
     },
     /// The plant failed.
-    Plant(PlantError),
+    Plant {
+        /// The plant's name.
+        plant: String,
+        /// Its error.
+        error: Box<dyn std::error::Error + Send + Sync>,
+    },
     /// The controller's parameters were rejected, or a step failed, on the host.
     Controller(boucwen_core::Error),
     /// The options are unusable.
@@ -189,7 +194,7 @@ impl fmt::Display for HilError {
             HilError::NoAnswer { request, port } => {
                 write!(f, "{port}: no answer from the board to {request}")
             }
-            HilError::Plant(e) => write!(f, "plant: {e}"),
+            HilError::Plant { plant, error } => write!(f, "plant: {plant}: {error}"),
             HilError::Controller(e) => write!(f, "controller: {e}"),
             HilError::Options(what) => write!(f, "options: {what}"),
         }
@@ -200,11 +205,18 @@ impl std::error::Error for HilError {
     fn source(&self) -> Option<&(dyn std::error::Error + 'static)> {
         match self {
             HilError::Link(e) => Some(e),
-            HilError::Plant(e) => Some(e),
+            HilError::Plant { error, .. } => Some(error.as_ref()),
             HilError::Controller(e) => Some(e),
             _ => None,
         }
     }
+}
+
+fn plant_error<P: Plant<f64> + ?Sized>(plant: &P, e: P::Error) -> HilError
+where
+    P::Error: std::error::Error + Send + Sync + 'static,
+{
+    HilError::Plant { plant: plant.name().to_owned(), error: Box::new(e) }
 }
 
 impl From<TransportError> for HilError {
@@ -266,12 +278,15 @@ struct Shadow {
 }
 
 /// Runs the board in a control run of `opts.samples` samples with `plant` as its actuator.
-pub fn run<P: Port>(
-    link: &mut Link<P>,
-    plant: &mut dyn Plant,
+pub fn run<L: Port, P: Plant<f64> + ?Sized>(
+    link: &mut Link<L>,
+    plant: &mut P,
     params: &ControllerParams,
     opts: &HilOptions,
-) -> Result<HilReport, HilError> {
+) -> Result<HilReport, HilError>
+where
+    P::Error: std::error::Error + Send + Sync + 'static,
+{
     let n = opts.samples;
     if n < 2 {
         return Err(HilError::Options("at least 2 samples"));
@@ -309,7 +324,7 @@ pub fn run<P: Port>(
 
     let mut apply = |log: &mut Vec<SampleRecord>, u: f32, input: InputSource| -> Result<f64, HilError> {
         let k = log.len() as u32;
-        let y = plant.step(u as f64).map_err(HilError::Plant)?;
+        let y = plant.step(u as f64).map_err(|e| plant_error(&*plant, e))?;
         let measurement = if k + 1 == n { MeasurementFate::Last } else { MeasurementFate::Unknown };
         log.push(SampleRecord { k, d_um: reference.next_sample(), u_v: u, y_um: y, input, measurement });
         Ok(y)
@@ -486,17 +501,20 @@ pub fn run<P: Port>(
 /// The same loop without the link: `params`' controller and `plant` stepped in-process,
 /// every measurement used at the next step. Returns the tracking RMSE from `settle` on,
 /// µm, the figure a run over a perfect link reaches.
-pub fn without_link(
-    plant: &mut dyn Plant,
+pub fn without_link<P: Plant<f64> + ?Sized>(
+    plant: &mut P,
     params: &ControllerParams,
     samples: u32,
     settle: u32,
-) -> Result<f64, HilError> {
+) -> Result<f64, HilError>
+where
+    P::Error: std::error::Error + Send + Sync + 'static,
+{
     let mut c = Controller::new(params).map_err(HilError::Controller)?;
     let (mut y_prev, mut sq, mut count) = (None, 0.0, 0u32);
     for k in 0..samples {
         let s = c.step(y_prev).map_err(HilError::Controller)?;
-        let y = plant.step(s.out.u as f64).map_err(HilError::Plant)?;
+        let y = plant.step(s.out.u as f64).map_err(|e| plant_error(&*plant, e))?;
         y_prev = Some(y as f32);
         if k >= settle {
             sq += (y - s.d as f64).powi(2);
@@ -508,13 +526,16 @@ pub fn without_link(
 
 /// Opens the serial device `port` and runs: what `boucwen hil --port PATH` does once it
 /// has its controller and plant.
-pub fn run_on_port(
+pub fn run_on_port<P: Plant<f64> + ?Sized>(
     port: &str,
     baud: u32,
-    plant: &mut dyn Plant,
+    plant: &mut P,
     params: &ControllerParams,
     opts: &HilOptions,
-) -> Result<HilReport, HilError> {
+) -> Result<HilReport, HilError>
+where
+    P::Error: std::error::Error + Send + Sync + 'static,
+{
     let mut link = Link::new(crate::transport::open_serial(port, baud)?);
     run(&mut link, plant, params, opts)
 }
@@ -596,13 +617,12 @@ impl HilReport {
 mod tests {
     use super::*;
     use crate::transport::{MemoryPort, SerialPort};
-    use crate::wire::message::MAX_AR;
     use boucwen_core::compensator::{HarmonicSpec, PhaseRule, Saturation, harmonic_response};
-    use boucwen_core::model::{
-        BoucWenParams, EnhancedParams, EnhancedState, ExtendedParams, HarmonicBranch, Model,
-    };
+    use boucwen_core::model::{BoucWenParams, EnhancedParams, ExtendedParams, HarmonicBranch};
+    use boucwen_core::plant::ModelPlant;
     use boucwen_core::rls::RlsConfig;
     use boucwen_core::signal::Oscillator;
+    use boucwen_link::message::MAX_AR;
     use nalgebra::Complex;
     use std::sync::atomic::Ordering;
 
@@ -617,36 +637,15 @@ mod tests {
     }
 
     /// The core's enhanced model (f64) as the actuator: a third harmonic of 23 Hz.
-    struct ModelPlant {
-        model: EnhancedParams<f64, 2, 0, 1>,
-        state: EnhancedState<f64, 2, 0, 1>,
-    }
+    type EnhancedPlant = ModelPlant<f64, EnhancedParams<f64, 2, 0, 1>>;
 
-    impl ModelPlant {
-        fn new() -> Self {
-            let model = EnhancedParams {
-                base: ext(),
-                branches: [HarmonicBranch { order: 3, alpha_s: 0.10, alpha_c: -0.06, ar: [] }],
-                drive: Oscillator::new(23.0, TS).unwrap(),
-            };
-            Self { state: model.initial_state(), model }
-        }
-    }
-
-    impl Plant for ModelPlant {
-        fn step(&mut self, u_v: f64) -> Result<f64, PlantError> {
-            Ok(self.model.step(&mut self.state, u_v))
-        }
-        fn sample_interval(&self) -> f64 {
-            TS
-        }
-        fn reset(&mut self) -> Result<(), PlantError> {
-            self.state = self.model.initial_state();
-            Ok(())
-        }
-        fn name(&self) -> &str {
-            "enhanced model"
-        }
+    fn model_plant() -> EnhancedPlant {
+        let model = EnhancedParams {
+            base: ext(),
+            branches: [HarmonicBranch { order: 3, alpha_s: 0.10, alpha_c: -0.06, ar: [] }],
+            drive: Oscillator::new(23.0, TS).unwrap(),
+        };
+        ModelPlant::new(model, TS).unwrap()
     }
 
     fn params() -> ControllerParams {
@@ -685,7 +684,7 @@ mod tests {
     ) -> HilReport {
         let (stop, h) = crate::transport::test_board::spawn(board_port, patience);
         let mut link = Link::new(port);
-        let mut plant = ModelPlant::new();
+        let mut plant = model_plant();
         let r = run(&mut link, &mut plant, &params(), &opts).unwrap();
         stop.store(true, Ordering::Relaxed);
         drop(link);
@@ -704,7 +703,7 @@ mod tests {
         assert_eq!(r.shadow_checked, 3000);
         assert_eq!((r.board.measurements_used, r.board.measurements_missing), (2999, 0));
         // Every measurement was used, so the run is the ideal loop, bit for bit in u.
-        let ideal = without_link(&mut ModelPlant::new(), &params(), 3000, opts.settle_samples).unwrap();
+        let ideal = without_link(&mut model_plant(), &params(), 3000, opts.settle_samples).unwrap();
         assert!((r.rmse_um - ideal).abs() < 1e-9, "{} vs {ideal}", r.rmse_um);
         assert!(r.rmse_um < 0.5, "{}", r.rmse_um);
     }
@@ -750,7 +749,7 @@ mod tests {
         let (a, _b) = MemoryPort::pair();
         let mut link = Link::new(a);
         let opts = HilOptions { reply_timeout: Duration::from_millis(20), ..HilOptions::new(10) };
-        let e = run(&mut link, &mut ModelPlant::new(), &params(), &opts).unwrap_err();
+        let e = run(&mut link, &mut model_plant(), &params(), &opts).unwrap_err();
         assert_eq!(e.to_string(), "memory port A: no answer from the board to Stop");
     }
 
@@ -760,7 +759,7 @@ mod tests {
         let mut link = Link::new(a);
         let mut p = params();
         p.rls.lambda = 1.5;
-        let e = run(&mut link, &mut ModelPlant::new(), &p, &HilOptions::new(10)).unwrap_err();
+        let e = run(&mut link, &mut model_plant(), &p, &HilOptions::new(10)).unwrap_err();
         assert!(e.to_string().contains("forgetting factor (must be in (0, 1])"), "{e}");
     }
 }

@@ -15,10 +15,12 @@
 //!   plant mode: `Command{k, u}` answered by `Measurement{k, y}`), with retries that the
 //!   board answers idempotently.
 
-use crate::plant::{Plant, PlantError};
-use crate::wire::frame::{SeqGap, SeqTracker};
-use crate::wire::message::{Mode, PlantParams, kind};
-use crate::wire::{self, Decoder, Message, Packet, WireError};
+use boucwen_core::Plant;
+use boucwen_link::frame::{SeqGap, SeqTracker};
+use boucwen_link::message::{Mode, PlantParams, kind};
+use boucwen_link::{self as wire, Decoder, Message, Packet, WireError};
+use rand_core::{RngCore, SeedableRng};
+use rand_xoshiro::Xoshiro256PlusPlus;
 use std::collections::VecDeque;
 use std::fmt;
 use std::io::{self, Read, Write};
@@ -172,23 +174,18 @@ impl Port for MemoryPort {
     }
 }
 
-/// SplitMix64 then xorshift: the fault injector's seeded generator.
+/// The fault injector's seeded generator: the project's one generator, xoshiro256++.
 #[derive(Clone, Debug)]
-struct Rng(u64);
+struct Rng(Xoshiro256PlusPlus);
 
 impl Rng {
     fn new(seed: u64) -> Self {
-        let mut z = seed.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        Self((z ^ (z >> 31)) | 1)
+        Self(Xoshiro256PlusPlus::seed_from_u64(seed))
     }
     fn next(&mut self) -> u64 {
-        self.0 ^= self.0 >> 12;
-        self.0 ^= self.0 << 25;
-        self.0 ^= self.0 >> 27;
-        self.0.wrapping_mul(0x2545_F491_4F6C_DD1D)
+        self.0.next_u64()
     }
+    /// Uniform in `[0, 1)`.
     fn unit(&mut self) -> f64 {
         (self.next() >> 11) as f64 / (1u64 << 53) as f64
     }
@@ -487,14 +484,14 @@ impl<P: Port> Link<P> {
 
 /// The driver board as a [`Plant`]: each [`Plant::step`] sends `Command{k, u[k]}` and waits
 /// for `Measurement{k, y[k]}` (the board's plant mode). On QEMU's `mps2-an386` the board's
-/// on-chip model ([`crate::wire::device::OnChipPlant`], configured by [`PlantParams`])
+/// on-chip model ([`boucwen_link::device::OnChipPlant`], configured by [`PlantParams`])
 /// stands for its DAC, actuator and sensor.
 ///
 /// A step whose answer does not come within the timeout is sent again, up to the number of
 /// attempts (at once when a damaged frame or the board's negative acknowledge shows the
 /// exchange failed); the board answers a repeated command with the measurement it already
 /// took, so a retry never steps the plant twice. A step that gets no answer at all is
-/// [`PlantError::Device`]; the next step then sends the next sample and the board holds
+/// [`BoardError::NoMeasurement`]; the next step then sends the next sample and the board holds
 /// the last input over the sample it missed.
 pub struct BoardPlant<P: Port> {
     link: Link<P>,
@@ -506,20 +503,56 @@ pub struct BoardPlant<P: Port> {
     name: String,
 }
 
-fn device_error(plant: &str, e: impl std::error::Error + Send + Sync + 'static) -> PlantError {
-    PlantError::Device { plant: plant.to_owned(), error: Box::new(e) }
+/// Why the board, driven as a plant, did not give a measurement.
+#[derive(Debug)]
+pub enum BoardError {
+    /// The command was NaN or infinite; nothing was sent.
+    NonFiniteInput {
+        /// The sample, counting from 0.
+        sample: u32,
+    },
+    /// The link failed.
+    Link(TransportError),
+    /// The board refused a request, or did not answer it.
+    Refused(String),
+    /// No measurement came back for a sample after every attempt.
+    NoMeasurement {
+        /// The sample.
+        sample: u32,
+        /// Attempts made.
+        attempts: u32,
+    },
 }
 
-#[derive(Debug)]
-struct Refusal(String);
-
-impl fmt::Display for Refusal {
+impl fmt::Display for BoardError {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.write_str(&self.0)
+        match self {
+            BoardError::NonFiniteInput { sample } => {
+                write!(f, "sample {sample}: the command u is not finite")
+            }
+            BoardError::Link(e) => write!(f, "{e}"),
+            BoardError::Refused(text) => f.write_str(text),
+            BoardError::NoMeasurement { sample, attempts } => {
+                write!(f, "sample {sample}: no measurement after {attempts} attempts")
+            }
+        }
     }
 }
 
-impl std::error::Error for Refusal {}
+impl std::error::Error for BoardError {
+    fn source(&self) -> Option<&(dyn std::error::Error + 'static)> {
+        match self {
+            BoardError::Link(e) => Some(e),
+            _ => None,
+        }
+    }
+}
+
+impl From<TransportError> for BoardError {
+    fn from(e: TransportError) -> Self {
+        BoardError::Link(e)
+    }
+}
 
 impl<P: Port> BoardPlant<P> {
     /// Configures the board's plant and starts an open-ended plant run; `ts_s` is the
@@ -531,40 +564,38 @@ impl<P: Port> BoardPlant<P> {
         ts_s: f64,
         timeout: Duration,
         attempts: u32,
-    ) -> Result<Self, PlantError> {
+    ) -> Result<Self, BoardError> {
         let name = link.port_name();
         let mut p = Self { link, params, ts_s, k: 0, timeout, attempts: attempts.max(1), name };
         p.begin()?;
         Ok(p)
     }
 
-    fn begin(&mut self) -> Result<(), PlantError> {
-        let name = self.name.clone();
-        let (timeout, attempts) = (self.timeout, self.attempts);
+    fn begin(&mut self) -> Result<(), BoardError> {
+        let (timeout, attempts, name) = (self.timeout, self.attempts, &self.name);
         let link = &mut self.link;
-        link.flush_peer().map_err(|e| device_error(&name, e))?;
+        link.flush_peer()?;
         link.discard_input();
-        link.request(&Message::Stop, attempts, timeout, |_, m| matches!(m, Message::Status(_)).then_some(()))
-            .map_err(|e| device_error(&name, e))?
-            .ok_or_else(|| device_error(&name, Refusal("no answer to Stop".into())))?;
+        link.request(&Message::Stop, attempts, timeout, |_, m| {
+            matches!(m, Message::Status(_)).then_some(())
+        })?
+        .ok_or_else(|| BoardError::Refused(format!("{name}: no answer to Stop")))?;
         for (msg, want) in [
             (Message::SetPlant(self.params.clone()), kind::SET_PLANT),
             (Message::Start { mode: Mode::Plant, samples: 0 }, kind::START),
         ] {
-            let answer = link
-                .request(&msg, attempts, timeout, |seq, m| match m {
-                    Message::Ack { kind, seq: s } if *kind == want && *s == seq => Some(Ok(())),
-                    Message::Fault(f) if f.seq == seq => Some(Err(f.text.to_string())),
-                    _ => None,
-                })
-                .map_err(|e| device_error(&name, e))?;
+            let answer = link.request(&msg, attempts, timeout, |seq, m| match m {
+                Message::Ack { kind, seq: s } if *kind == want && *s == seq => Some(Ok(())),
+                Message::Fault(f) if f.seq == seq => Some(Err(f.text.to_string())),
+                _ => None,
+            })?;
             match answer {
                 Some(Ok(())) => {}
                 Some(Err(text)) => {
-                    return Err(device_error(&name, Refusal(format!("the board refused: {text}"))));
+                    return Err(BoardError::Refused(format!("{name}: the board refused: {text}")));
                 }
                 None => {
-                    return Err(device_error(&name, Refusal(format!("no answer to message 0x{want:02x}"))));
+                    return Err(BoardError::Refused(format!("{name}: no answer to message 0x{want:02x}")));
                 }
             }
         }
@@ -578,43 +609,42 @@ impl<P: Port> BoardPlant<P> {
     }
 }
 
-impl<P: Port> Plant for BoardPlant<P> {
-    fn step(&mut self, u_v: f64) -> Result<f64, PlantError> {
+impl<P: Port> Plant<f64> for BoardPlant<P> {
+    type Error = BoardError;
+
+    fn step(&mut self, u_v: f64) -> Result<f64, BoardError> {
         let k = self.k;
         if !u_v.is_finite() {
-            return Err(PlantError::NonFiniteInput { plant: self.name.clone(), sample: k as usize });
+            return Err(BoardError::NonFiniteInput { sample: k });
         }
         let u = u_v as f32;
         let msg = Message::Command { k, u, used: 0, flags: 0 };
         for _ in 0..self.attempts {
-            self.link.send(&msg).map_err(|e| device_error(&self.name, e))?;
+            self.link.send(&msg)?;
             let deadline = Instant::now() + self.timeout;
             // A damaged frame or the board's negative acknowledge means the exchange failed:
             // try again at once rather than waiting out the timeout.
-            while let Some(r) = self.link.recv(deadline).map_err(|e| device_error(&self.name, e))? {
+            while let Some(r) = self.link.recv(deadline)? {
                 match r.map(|p| p.msg) {
                     Ok(Message::Measurement { k: kk, y }) if kk == k => {
                         self.k = self.k.wrapping_add(1);
                         return Ok(y as f64);
                     }
-                    Ok(Message::Fault(f)) if f.code == crate::wire::message::FaultCode::BadFrame => break,
+                    Ok(Message::Fault(f)) if f.code == boucwen_link::message::FaultCode::BadFrame => break,
                     Err(_) => break,
                     Ok(_) => {}
                 }
             }
         }
         self.k = self.k.wrapping_add(1);
-        Err(device_error(
-            &self.name,
-            Refusal(format!("sample {k}: no measurement after {} attempts", self.attempts)),
-        ))
+        Err(BoardError::NoMeasurement { sample: k, attempts: self.attempts })
     }
 
-    fn sample_interval(&self) -> f64 {
+    fn sample_interval_s(&self) -> f64 {
         self.ts_s
     }
 
-    fn reset(&mut self) -> Result<(), PlantError> {
+    fn reset(&mut self) -> Result<(), BoardError> {
         self.begin()
     }
 
@@ -627,9 +657,9 @@ impl<P: Port> Plant for BoardPlant<P> {
 #[cfg(test)]
 pub(crate) mod test_board {
     use super::Port;
-    use crate::wire::Decoder;
-    use crate::wire::Message;
-    use crate::wire::device::{Device, TimerRequest};
+    use boucwen_link::Decoder;
+    use boucwen_link::Message;
+    use boucwen_link::device::{Device, TimerRequest};
     use std::sync::Arc;
     use std::sync::atomic::{AtomicBool, Ordering};
     use std::time::{Duration, Instant};
@@ -678,7 +708,7 @@ pub(crate) mod test_board {
                 let period = if ticking { patience } else { Duration::from_millis(1) };
                 if last_tick.elapsed() >= period {
                     last_tick = Instant::now();
-                    if dev.on_tick(0, &mut crate::wire::analog::NoFrontEnd, &|| 0, &mut send)
+                    if dev.on_tick(0, &mut boucwen_link::analog::NoFrontEnd, &|| 0, &mut send)
                         == TimerRequest::Stop
                     {
                         ticking = false;
@@ -696,9 +726,9 @@ pub(crate) mod test_board {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::wire::device::OnChipPlant;
     use boucwen_core::model::{BoucWenParams, ExtendedParams, HarmonicBranch};
     use boucwen_core::signal::Oscillator;
+    use boucwen_link::device::OnChipPlant;
     use std::sync::atomic::Ordering;
 
     fn plant_params() -> PlantParams {

@@ -413,3 +413,32 @@ impl Bimorph {
         }
     }
 }
+
+/// The [`Plant::name`](boucwen_core::Plant::name) of the virtual bimorph.
+pub const BIMORPH_NAME: &str = "virtual bimorph";
+
+/// The virtual bimorph as the core's plant: each step integrates its physics over one
+/// sample interval. A non-finite command is [`SimError::NonFiniteInput`], a diverged
+/// state [`SimError::Diverged`]; either way the bimorph keeps its state from before the
+/// call. `reset` returns it to rest at time 0 with its noise reseeded, so a second run
+/// repeats the first exactly.
+impl boucwen_core::Plant<f64> for Bimorph {
+    type Error = SimError;
+
+    fn step(&mut self, u_v: f64) -> Result<f64, SimError> {
+        Bimorph::step(self, u_v)
+    }
+
+    fn sample_interval_s(&self) -> f64 {
+        self.ts_s()
+    }
+
+    fn reset(&mut self) -> Result<(), SimError> {
+        Bimorph::reset(self);
+        Ok(())
+    }
+
+    fn name(&self) -> &str {
+        BIMORPH_NAME
+    }
+}

@@ -95,6 +95,6 @@ pub mod measure;
 mod rng;
 pub mod scenario;
 
-pub use bimorph::{Bimorph, Detail};
+pub use bimorph::{BIMORPH_NAME, Bimorph, Detail};
 pub use error::SimError;
 pub use scenario::Scenario;

@@ -16,7 +16,7 @@
 //! documented registers above.
 
 use crate::{RX, TX};
-use boucwen_hal::wire::analog::NoFrontEnd;
+use boucwen_link::analog::NoFrontEnd;
 
 /// The system clock of the timers and the UART, Hz.
 pub const SYSCLK_HZ: u32 = 25_000_000;

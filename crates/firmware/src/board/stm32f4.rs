@@ -5,8 +5,8 @@
 //! |---|---|---|---|
 //! | USART2, 8N1 at the baud rate | PA2 TX, PA3 RX (AF7) | `UART` (USART2) | the link to the host |
 //! | TIM2, update at the sample rate | – | `TICK` (TIM2) | the sample tick; its compare channel 2, 5 µs before the update, triggers ADC1 |
-//! | ADC1, channel 1, 12 bits, 15-cycle sampling | PA1 | – | the sensor ([`boucwen_hal::wire::analog::SENSOR`]) |
-//! | DAC channel 1, 12 bits | PA4 | – | the drive ([`boucwen_hal::wire::analog::DRIVE`]) |
+//! | ADC1, channel 1, 12 bits, 15-cycle sampling | PA1 | – | the sensor ([`boucwen_link::analog::SENSOR`]) |
+//! | DAC channel 1, 12 bits | PA4 | – | the drive ([`boucwen_link::analog::DRIVE`]) |
 //! | IWDG, 50 ms | – | – | fed by `idle` while ticks come |
 //! | TIM3, one update per byte time | – | `PACE` (TIM3) | `emulator` only: paces the transmitter |
 //!
@@ -23,7 +23,7 @@
 //! differs.
 
 use crate::{RX, TX};
-use boucwen_hal::wire::analog::{AdcCode, DRIVE, DacCode, FrontEnd, SENSOR};
+use boucwen_link::analog::{AdcCode, DRIVE, DacCode, FrontEnd, SENSOR};
 use stm32f4xx_hal::pac as chip;
 use stm32f4xx_hal::prelude::*;
 use stm32f4xx_hal::serial::{Event as SerialEvent, Serial};

@@ -64,6 +64,9 @@ use std::io::Write;
 use std::path::Path;
 use std::sync::atomic::{AtomicU64, Ordering};
 
+mod replay;
+pub use replay::{REPLAY_TOLERANCE_V, Replay, ReplayError};
+
 /// Largest accepted `|u|`, V.
 pub const U_LIMIT_V: f64 = 1000.0;
 /// Largest accepted `|y|` and `|d|`, µm (10 cm).
@@ -95,7 +98,7 @@ pub enum At {
 /// Its `Display` is one line: the source, the place, the column, and what is wrong.
 ///
 /// ```
-/// use boucwen_hal::record::Record;
+/// use boucwen_lab::record::Record;
 /// let err = Record::parse("t,u,y\n0,0,0\n0.001,0,abc\n", "data.csv").unwrap_err();
 /// assert_eq!(err.to_string(), r#"data.csv:3: column "y": "abc" is not a number"#);
 /// ```
@@ -310,13 +313,13 @@ impl RecordError {
 /// for reading; [`Record::write`] checks again what it writes.
 ///
 /// ```
-/// use boucwen_hal::record::Record;
+/// use boucwen_lab::record::Record;
 /// let text = "# bench run 3\r\nt,y,u\r\n0.000,0.1,0\r\n0.001,0.4,0.5\r\n0.002,0.2,-0.5\r\n";
 /// let r = Record::parse(text, "run3.csv")?;
 /// assert_eq!((r.len(), r.u[1], r.y[1]), (3, 0.5, 0.4));
 /// assert!((r.ts - 1e-3).abs() < 1e-15);
 /// assert!(r.d.is_none());
-/// # Ok::<(), boucwen_hal::record::RecordError>(())
+/// # Ok::<(), boucwen_lab::record::RecordError>(())
 /// ```
 #[derive(Clone, Debug, PartialEq)]
 pub struct Record {
@@ -402,12 +405,12 @@ impl Record {
     /// `source` and the sample).
     ///
     /// ```
-    /// use boucwen_hal::record::Record;
+    /// use boucwen_lab::record::Record;
     /// let r = Record::new("sim", 0.0, 1e-3, vec![0.0, 1.0, 0.0], vec![0.0, 2.0, 1.0], None)?;
     /// assert_eq!(r.time(2), 2e-3);
     /// let bad = Record::new("sim", 0.0, 1e-3, vec![0.0, 1e4], vec![0.0, 0.0], None).unwrap_err();
     /// assert_eq!(bad.to_string(), r#"sim: sample 1: column "u": 10000 is beyond ±1000 V"#);
-    /// # Ok::<(), boucwen_hal::record::RecordError>(())
+    /// # Ok::<(), boucwen_lab::record::RecordError>(())
     /// ```
     pub fn new(
         source: &str,
@@ -598,10 +601,10 @@ impl Record {
     /// [`MIN_EXCITATION_STD_V`] (1 mV). A constant command identifies nothing.
     ///
     /// ```
-    /// use boucwen_hal::record::Record;
+    /// use boucwen_lab::record::Record;
     /// let r = Record::new("flat.csv", 0.0, 1e-3, vec![2.0; 4], vec![0.0, 1.0, 2.0, 3.0], None)?;
     /// assert!(r.check_excitation().unwrap_err().to_string().starts_with("flat.csv: no excitation"));
-    /// # Ok::<(), boucwen_hal::record::RecordError>(())
+    /// # Ok::<(), boucwen_lab::record::RecordError>(())
     /// ```
     pub fn check_excitation(&self) -> Result<(), RecordError> {
         let n = self.u.len().max(1) as f64;
@@ -663,14 +666,14 @@ impl Record {
 /// round-trip form.
 ///
 /// ```
-/// use boucwen_hal::record::write_columns;
+/// use boucwen_lab::record::write_columns;
 /// let dir = std::env::temp_dir().join(format!("boucwen-doc-{}", std::process::id()));
 /// std::fs::create_dir_all(&dir).unwrap();
 /// let path = dir.join("gain.csv");
 /// write_columns(&path, &[("f_hz", &[10.0, 20.0]), ("gain_db", &[-0.5, -3.25])])?;
 /// assert_eq!(std::fs::read_to_string(&path).unwrap(), "f_hz,gain_db\n10,-0.5\n20,-3.25\n");
 /// # std::fs::remove_dir_all(&dir).unwrap();
-/// # Ok::<(), boucwen_hal::record::RecordError>(())
+/// # Ok::<(), boucwen_lab::record::RecordError>(())
 /// ```
 pub fn write_columns(path: impl AsRef<Path>, columns: &[(&str, &[f64])]) -> Result<(), RecordError> {
     let path = path.as_ref();

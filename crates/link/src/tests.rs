@@ -520,7 +520,7 @@ struct Recorder {
     y: Option<f32>,
 }
 
-impl crate::wire::analog::FrontEnd for Recorder {
+impl crate::analog::FrontEnd for Recorder {
     fn sense(&mut self) -> Option<f32> {
         self.y
     }

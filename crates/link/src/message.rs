@@ -28,7 +28,8 @@
 
 use super::WireError;
 use super::frame::MAX_PAYLOAD;
-use boucwen_core::compensator::{HarmonicSpec, Saturation};
+use boucwen_core::Error;
+use boucwen_core::compensator::{CompensatorConfig, DirectInverse, HarmonicSpec, Saturation};
 use boucwen_core::controllers::{OrcConfig, OrcPlacement, PiConfig};
 use boucwen_core::model::{BoucWenParams, ExtendedParams, HarmonicBranch};
 use boucwen_core::rls::RlsConfig;
@@ -69,101 +70,66 @@ pub struct ControllerParams {
     pub uc_max: f32,
 }
 
-/// The reference of a control run, as [`ControllerParams::from_design`] takes it.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct ReferenceSpec {
-    /// Frequency `f`, Hz.
-    pub freq_hz: f64,
-    /// Amplitude `α`, µm.
-    pub amplitude_um: f64,
-    /// Raised-cosine fade-in, s (0: none).
-    pub fade_s: f64,
-}
-
 impl ControllerParams {
-    /// The board's parameters for a compensator designed on the host in `f64`: the
-    /// identified `model` (AR order `P ≤` [`MAX_AR`], padded with zeros), the cancelled
-    /// `harmonics` (at most [`MAX_HARMONICS`]), RLS settings, the driver's range and the
-    /// reference, at sample interval `ts_s`. Values are rounded to `f32`; the result is
-    /// validated as the board would validate it.
+    /// Checks the parameters as the board does before it accepts them: a non-zero sample
+    /// period, a finite amplitude, an invertible model, and each cancelled harmonic, RLS
+    /// setting and range as the core's compensator checks them (the error names the
+    /// parameter).
     ///
     /// ```
     /// use boucwen_core::compensator::Saturation;
     /// use boucwen_core::model::{BoucWenParams, ExtendedParams};
     /// use boucwen_core::rls::RlsConfig;
-    /// use boucwen_hal::wire::message::{ControllerParams, ReferenceSpec};
-    /// let model = ExtendedParams {
-    ///     bw: BoucWenParams { a1: 20.0, a: 6.0, a0: 0.5, gamma: 2.0, beta: 3.0 },
-    ///     ar: [1.5, -0.6],
+    /// use boucwen_core::signal::Oscillator;
+    /// use boucwen_link::message::ControllerParams;
+    /// let mut p = ControllerParams {
+    ///     model: ExtendedParams {
+    ///         bw: BoucWenParams { a1: 20.0, a: 6.0, a0: 0.5, gamma: 2.0, beta: 3.0 },
+    ///         ar: [1.5, -0.6, 0.0],
+    ///     },
+    ///     drive: Oscillator::new(23.0, 1e-3)?,
+    ///     sample_period_us: 1000,
+    ///     amplitude_um: 20.0,
+    ///     fade_samples: 500,
+    ///     harmonics: heapless::Vec::new(),
+    ///     rls: RlsConfig::with_forgetting(0.999, 1e-2),
+    ///     saturation: Saturation::symmetric(10.0),
+    ///     uc_max: 2.0,
     /// };
-    /// let reference = ReferenceSpec { freq_hz: 23.0, amplitude_um: 20.0, fade_s: 0.5 };
-    /// let p = ControllerParams::from_design(&model, &[], RlsConfig::with_forgetting(0.999, 1e-2),
-    ///     Saturation::symmetric(10.0), 2.0, reference, 1e-3)?;
-    /// assert_eq!((p.sample_period_us, p.fade_samples, p.model.ar), (1000, 500, [1.5, -0.6, 0.0]));
+    /// assert!(p.validate().is_ok());
+    /// p.sample_period_us = 0;
+    /// assert!(p.validate().is_err());
     /// # Ok::<(), boucwen_core::Error>(())
     /// ```
-    pub fn from_design<const P: usize>(
-        model: &ExtendedParams<f64, P>,
-        harmonics: &[HarmonicSpec<f64>],
-        rls: RlsConfig<f64>,
-        saturation: Saturation<f64>,
-        uc_max: f64,
-        reference: ReferenceSpec,
-        ts_s: f64,
-    ) -> Result<Self, boucwen_core::Error> {
-        use boucwen_core::Error;
-        if P > MAX_AR {
-            return Err(Error::OutOfRange("AR order (the board takes at most 3)"));
+    pub fn validate(&self) -> Result<(), Error> {
+        if self.sample_period_us == 0 {
+            return Err(Error::OutOfRange("sample period (must be > 0 µs)"));
         }
-        if harmonics.len() > MAX_HARMONICS {
-            return Err(Error::OutOfRange("harmonic count (the board cancels at most 2)"));
+        if !self.amplitude_um.is_finite() {
+            return Err(Error::NonFinite("reference amplitude"));
         }
-        if harmonics.iter().any(|h| h.order > u8::MAX as u32) {
-            return Err(Error::OutOfRange("harmonic order (at most 255 on the wire)"));
-        }
-        let drive = Oscillator::new(reference.freq_hz, ts_s)?;
-        let period_us = ts_s * 1e6;
-        if !(period_us >= 1.0 && period_us <= u32::MAX as f64) {
-            return Err(Error::OutOfRange("sample interval (1 µs to 4295 s)"));
-        }
-        let fade = reference.fade_s / ts_s;
-        if !(fade >= 0.0 && fade <= u32::MAX as f64) {
-            return Err(Error::OutOfRange("fade-in (must be >= 0)"));
-        }
-        let f = |x: f64| x as f32;
-        let mut ar = [0.0f32; MAX_AR];
-        for (a, &b) in ar.iter_mut().zip(&model.ar) {
-            *a = f(b);
-        }
-        let bw = &model.bw;
-        let p = Self {
-            model: ExtendedParams {
-                bw: BoucWenParams {
-                    a1: f(bw.a1),
-                    a: f(bw.a),
-                    a0: f(bw.a0),
-                    gamma: f(bw.gamma),
-                    beta: f(bw.beta),
-                },
-                ar,
-            },
-            drive,
-            sample_period_us: (period_us + 0.5) as u32,
-            amplitude_um: f(reference.amplitude_um),
-            fade_samples: (fade + 0.5) as u32,
-            harmonics: harmonics
-                .iter()
-                .map(|h| HarmonicSpec {
-                    order: h.order,
-                    response: Complex::new(f(h.response.re), f(h.response.im)),
-                })
-                .collect(),
-            rls: RlsConfig { lambda: f(rls.lambda), p0: f(rls.p0), p_max: f(rls.p_max) },
-            saturation: Saturation { u_min: f(saturation.u_min), u_max: f(saturation.u_max) },
-            uc_max: f(uc_max),
+        let base = CompensatorConfig::<f32, MAX_AR, 0> {
+            model: self.model,
+            drive: self.drive,
+            harmonics: [],
+            rls: self.rls,
+            saturation: self.saturation,
+            uc_max: self.uc_max,
         };
-        super::device::Controller::new(&p)?;
-        Ok(p)
+        base.validate()?;
+        DirectInverse::new(self.model)?;
+        for &h in &self.harmonics {
+            CompensatorConfig::<f32, MAX_AR, 1> {
+                model: base.model,
+                drive: base.drive,
+                harmonics: [h],
+                rls: base.rls,
+                saturation: base.saturation,
+                uc_max: base.uc_max,
+            }
+            .validate()?;
+        }
+        Ok(())
     }
 }
 
@@ -204,22 +170,6 @@ pub struct OrcParams {
 }
 
 impl OrcParams {
-    /// The wire form of a host design (`f64`, rounded to `f32`).
-    pub fn from_design(pi: &PiConfig<f64>, orc: &OrcConfig<f64>) -> Result<Self, boucwen_core::Error> {
-        let lead_samples = u16::try_from(orc.lead_samples)
-            .map_err(|_| boucwen_core::Error::OutOfRange("ORC lead (at most 65535 samples on the wire)"))?;
-        Ok(Self {
-            kp: pi.kp as f32,
-            ki_per_s: pi.ki_per_s as f32,
-            feedforward_gain: pi.feedforward_gain as f32,
-            q_coeff: orc.q_coeff as f32,
-            learning_gain: orc.learning_gain as f32,
-            lead_samples,
-            limit: orc.limit as f32,
-            placement: orc.placement,
-        })
-    }
-
     /// The PI and internal-model configurations with the controller's reference, sample
     /// period and range.
     pub fn configs(&self, c: &ControllerParams) -> (PiConfig<f32>, OrcConfig<f32>) {

@@ -1,4 +1,8 @@
-//! The wire protocol between the host and the driver board (`no_std`, no allocation).
+//! # boucwen-link
+//!
+//! The wire protocol between the host and the driver board (`no_std`, no allocation),
+//! and the board's side of it: the firmware and the host's tools depend on this crate
+//! alike, so both ends run the same code.
 //!
 //! ## Layers
 //! 1. **Bytes** ([`cobs`]): each frame is COBS-coded and followed by a `0x00` delimiter, so
@@ -32,6 +36,8 @@
 //! ## Link budget
 //! A command is 16 bytes on the wire and a measurement 14, so a 1 kHz loop needs about
 //! 160 kbit/s each way (10 bits per byte): 230,400 baud at least, 460,800 for margin.
+
+#![cfg_attr(not(test), no_std)]
 
 pub mod analog;
 pub mod cobs;
@@ -91,12 +97,12 @@ pub struct Packet {
 /// Encodes `msg` as frame number `seq`, ready to send.
 ///
 /// ```
-/// use boucwen_hal::wire::{encode, Decoder, Message, Packet};
+/// use boucwen_link::{encode, Decoder, Message, Packet};
 /// let bytes = encode(3, &Message::Measurement { k: 41, y: 12.5 })?;
 /// let mut dec = Decoder::new();
 /// let got: Vec<_> = bytes.iter().filter_map(|&b| dec.push(b)).collect();
 /// assert_eq!(got, [Ok(Packet { seq: 3, msg: Message::Measurement { k: 41, y: 12.5 } })]);
-/// # Ok::<(), boucwen_hal::wire::WireError>(())
+/// # Ok::<(), boucwen_link::WireError>(())
 /// ```
 pub fn encode(seq: u16, msg: &Message) -> Result<EncodedFrame, WireError> {
     let mut payload = [0u8; MAX_PAYLOAD];

@@ -5,8 +5,8 @@
 use crate::analysis;
 use crate::diagnose::Diagnosis;
 use crate::plot::{Chart, Series};
+use crate::record::{RecordError, write_atomic};
 use crate::sweep::{SweepResult, Traces};
-use boucwen_hal::record::{RecordError, write_atomic};
 use std::path::{Path, PathBuf};
 
 /// An output that could not be written.

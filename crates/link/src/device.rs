@@ -127,12 +127,7 @@ pub struct Controller {
 impl Controller {
     /// Builds the controller of `p`, validating it (the error names the parameter).
     pub fn new(p: &ControllerParams) -> Result<Self, Error> {
-        if p.sample_period_us == 0 {
-            return Err(Error::OutOfRange("sample period (must be > 0 µs)"));
-        }
-        if !p.amplitude_um.is_finite() {
-            return Err(Error::NonFinite("reference amplitude"));
-        }
+        p.validate()?;
         fn config<const M: usize>(p: &ControllerParams) -> CompensatorConfig<f32, MAX_AR, M> {
             CompensatorConfig {
                 model: p.model,

@@ -18,7 +18,7 @@ pub const fn max_encoded_len(n: usize) -> usize {
 /// (it needs [`max_encoded_len`]`(data.len())` bytes to be sure).
 ///
 /// ```
-/// use boucwen_hal::wire::cobs::{decode, encode};
+/// use boucwen_link::cobs::{decode, encode};
 /// let mut enc = [0u8; 8];
 /// let n = encode(&[0x11, 0x00, 0x22], &mut enc).unwrap();
 /// assert_eq!(&enc[..n], &[0x02, 0x11, 0x02, 0x22]);

@@ -43,7 +43,7 @@ pub struct RawFrame {
 /// Encodes a frame. Fails only if `payload` is longer than [`MAX_PAYLOAD`].
 ///
 /// ```
-/// use boucwen_hal::wire::frame::{encode, FrameDecoder};
+/// use boucwen_link::frame::{encode, FrameDecoder};
 /// let bytes = encode(7, 0x42, &[1, 0, 2])?;
 /// assert_eq!(bytes.last(), Some(&0));
 /// let mut dec = FrameDecoder::new();
@@ -55,7 +55,7 @@ pub struct RawFrame {
 /// }
 /// let frame = got.unwrap();
 /// assert_eq!((frame.seq, frame.kind, &frame.payload[..]), (7, 0x42, &[1, 0, 2][..]));
-/// # Ok::<(), boucwen_hal::wire::WireError>(())
+/// # Ok::<(), boucwen_link::WireError>(())
 /// ```
 pub fn encode(seq: u16, kind: u8, payload: &[u8]) -> Result<EncodedFrame, WireError> {
     if payload.len() > MAX_PAYLOAD {
@@ -169,7 +169,7 @@ impl SeqTracker {
     /// Notes the sequence number of an intact frame.
     ///
     /// ```
-    /// use boucwen_hal::wire::frame::{SeqGap, SeqTracker};
+    /// use boucwen_link::frame::{SeqGap, SeqTracker};
     /// let mut t = SeqTracker::new();
     /// assert_eq!(t.observe(65_534), SeqGap::Sync);
     /// assert_eq!(t.observe(65_535), SeqGap::Missed(0));

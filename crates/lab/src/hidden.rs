@@ -43,7 +43,7 @@
 
 use crate::analysis;
 use crate::experiment;
-use boucwen_hal::record::{Record, RecordError};
+use crate::record::{Record, RecordError};
 use boucwen_sim::scenario::{Mode, StiffeningTerm};
 use boucwen_sim::{Bimorph, Scenario, SimError};
 use std::f64::consts::TAU;

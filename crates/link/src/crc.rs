@@ -30,7 +30,7 @@ const TABLE: [u32; 16] = {
 /// An incremental CRC-32C.
 ///
 /// ```
-/// use boucwen_hal::wire::crc::Crc32c;
+/// use boucwen_link::crc::Crc32c;
 /// let mut c = Crc32c::new();
 /// c.update(b"1234");
 /// c.update(b"56789");

@@ -1,0 +1,28 @@
+//! # boucwen-lab
+//!
+//! The host library of boucwen: everything between a record on disk and a result. The
+//! `boucwen` binary is a thin command-line layer over it.
+//!
+//! | module | what |
+//! |---|---|
+//! | [`record`] | measured records on disk (CSV), [`record::Replay`] as a plant |
+//! | [`analysis`] | spectra, harmonics, whole periods |
+//! | [`fit`] | identification: the paper's RLS and output error |
+//! | [`design`] | an identified model (or a plant) to the board's parameters |
+//! | [`experiment`] | closed-loop runs of the compensator and the peers |
+//! | [`sweep`] | the paper's Figs. 10 and 16 on the virtual bimorph |
+//! | [`diagnose`] | what a model gets wrong on a record, the cause, the term that fixes it |
+//! | [`report`], [`plot`] | files, pages and SVG figures |
+//! | `hidden` (feature `fixtures`) | records of the virtual bimorph with a hidden effect, for tests and benches |
+
+pub mod analysis;
+pub mod design;
+pub mod diagnose;
+pub mod experiment;
+pub mod fit;
+#[cfg(feature = "fixtures")]
+pub mod hidden;
+pub mod plot;
+pub mod record;
+pub mod report;
+pub mod sweep;
