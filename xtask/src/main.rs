@@ -68,6 +68,10 @@ enum Task {
         /// Samples to run.
         #[arg(long, default_value_t = 5000)]
         samples: u32,
+        /// A free-running control run (a measurement that misses the board's next tick is
+        /// missing) instead of lockstep (the tick waits for it, boundedly).
+        #[arg(long)]
+        free_running: bool,
         /// End with one JSON line of the figures.
         #[arg(long)]
         json: bool,
@@ -128,8 +132,8 @@ fn main() -> ExitCode {
             }
             finish(failures)
         }
-        Task::Hil { board, inject_faults, samples, json } => {
-            finish(hil::run(&hil::Options { board, inject_faults, json, samples }))
+        Task::Hil { board, inject_faults, samples, free_running, json } => {
+            finish(hil::run(&hil::Options { board, inject_faults, json, samples, free_running }))
         }
         Task::Timing { board, frames, json } => finish(timing::run(board, frames, json)),
         Task::Flash { chip, build_only } => finish(flash::run(&flash::Options { chip, build_only })),

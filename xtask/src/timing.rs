@@ -81,10 +81,9 @@ pub fn run(board: Board, burst: u32, json: bool) -> Vec<String> {
         request_ok(&mut link, &Message::SetSafety(quiet))?;
         let mut dec = Decoder::new();
         for &b in &frames(&CASES[1], SAMPLES)? {
-            if let Some(Ok(p)) = dec.push(b) {
-                if !matches!(p.msg, Message::Start { .. }) {
-                    request_ok(&mut link, &p.msg)?;
-                }
+            match dec.push(b) {
+                Some(Ok(p)) if !matches!(p.msg, Message::Start { .. }) => request_ok(&mut link, &p.msg)?,
+                _ => {}
             }
         }
         request_ok(&mut link, &Message::Start { mode: Mode::Simulated, samples: SAMPLES })?;

@@ -24,6 +24,23 @@
 //! sample: steps with and without a measurement add up to `n - 1`, and agree with what the
 //! host learnt sample by sample ([`HilReport::samples_accounted`]).
 //!
+//! ## Lockstep
+//! The host's actuator is a simulation on an operating system that is not real-time, and
+//! at 460,800 baud a command and its measurement take 0.80 ms of the 1 ms period on the
+//! line alone. By default the run is in lockstep ([`Mode::Lockstep`]): the board's tick
+//! waits for the previous sample's measurement (boundedly), so the loop is the loop of
+//! the plant's sample index whatever the host's latency; [`HilOptions::lockstep`] `false`
+//! runs a free-running control run, where a measurement later than the next tick is
+//! missing.
+//!
+//! ## Safe state at the end
+//! After the run the host stays silent. The board, idle with its drive where the last
+//! command left it, declares the host lost after [`SafetyParams::host_timeout_ms`] and ramps
+//! the drive to 0 V (telemetry flagged [`command_flags::SAFE_RAMP`], then
+//! [`Message::Safe`]). The host checks the ramp (monotonic, steps of at most the slew,
+//! ending at 0 V) and reports the time from its last frame to 0 V as the board counted it
+//! ([`HilReport::safe_state`]).
+//!
 //! ## Shadow check
 //! The host runs the same controller ([`boucwen_link::device::Controller`], `f32`, the
 //! same code as the firmware) fed exactly what the board reports it used, and compares
@@ -34,7 +51,9 @@
 use crate::transport::{FaultCounts, Link, LinkStats, Port, TransportError};
 use boucwen_core::Plant;
 use boucwen_link::device::{Controller, Reference};
-use boucwen_link::message::{ControllerParams, Fault, Message, Mode, RunState, Status};
+use boucwen_link::message::{
+    ControllerParams, Fault, Message, Mode, RunState, SafeReason, SafetyParams, Status, command_flags,
+};
 use std::fmt;
 use std::time::{Duration, Instant};
 
@@ -53,11 +72,16 @@ pub struct HilOptions {
     pub reply_timeout: Duration,
     /// Silence on the link that ends the run's exchange.
     pub link_timeout: Duration,
+    /// Run in lockstep (the board's tick waits for the measurement); else free-running.
+    pub lockstep: bool,
+    /// The board's drive limits and safe state for the run.
+    pub safety: SafetyParams,
 }
 
 impl HilOptions {
-    /// `samples` samples on a clean link; RMSE after the first fifth (at least the fade-in
-    /// of 500 samples); 0.5 s per configuration request, 2 s of silence ends the run.
+    /// `samples` samples on a clean link in lockstep; RMSE after the first fifth (at least
+    /// the fade-in of 500 samples); 0.5 s per configuration request, 2 s of silence ends
+    /// the run; the board's default safety parameters.
     pub fn new(samples: u32) -> Self {
         Self {
             samples,
@@ -66,6 +90,8 @@ impl HilOptions {
             settle_samples: (samples / 5).max(500).min(samples / 2),
             reply_timeout: Duration::from_millis(500),
             link_timeout: Duration::from_secs(2),
+            lockstep: true,
+            safety: SafetyParams::DEFAULT,
         }
     }
 }
@@ -109,6 +135,21 @@ pub struct SampleRecord {
     pub measurement: MeasurementFate,
 }
 
+/// How the board reached its safe state after the host fell silent.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SafeState {
+    /// The drive when the host fell silent, V.
+    pub from_v: f32,
+    /// From the host's last frame to 0 V, as the board counted it (ticks times the
+    /// period), ms.
+    pub board_ms: f64,
+    /// From the host sending its last frame to receiving the board's `Safe`, ms (link
+    /// and, in an emulator, its clock included).
+    pub host_ms: f64,
+    /// Ramp steps seen (telemetry frames flagged as the ramp).
+    pub ramp_steps: u32,
+}
+
 /// The result of a run.
 #[derive(Clone, Debug)]
 pub struct HilReport {
@@ -146,6 +187,12 @@ pub struct HilReport {
     pub stale_commands: u32,
     /// Rejections (`Fault`) the board sent during the run.
     pub board_faults: u32,
+    /// Whether the run was in lockstep.
+    pub lockstep: bool,
+    /// Ticks the board waited for measurements (lockstep).
+    pub lockstep_waits: u32,
+    /// The ramp to 0 V after the run (`None` if the drive was at 0 V already).
+    pub safe_state: Option<SafeState>,
     /// Inconsistencies found by the accounting (empty when all is well).
     pub problems: Vec<String>,
     /// Every sample.
@@ -268,6 +315,82 @@ fn final_status<P: Port>(
     }
 }
 
+/// The board's diagnostics (over a clean link).
+fn diagnostics<P: Port>(
+    link: &mut Link<P>,
+    opts: &HilOptions,
+) -> Result<boucwen_link::message::Diagnostics, HilError> {
+    link.request(&Message::GetDiagnostics, 3, opts.reply_timeout, |_, m| match m {
+        Message::Diagnostics(d) => Some(*d),
+        _ => None,
+    })?
+    .ok_or_else(|| HilError::NoAnswer { request: "GetDiagnostics", port: link.port_name() })
+}
+
+/// Falls silent and watches the board take its drive from `from_v` to 0 V: the ramp's
+/// telemetry must fall monotonically to 0 V in steps of at most the slew per period, and
+/// `Safe` must name the lost host and come within the timeout plus the ramp's length (two
+/// ticks of slack). What is wrong goes to `problems`.
+fn safe_state<P: Port>(
+    link: &mut Link<P>,
+    safety: &SafetyParams,
+    from_v: f32,
+    period_us: u32,
+    problems: &mut Vec<String>,
+) -> Result<Option<SafeState>, HilError> {
+    if from_v == 0.0 {
+        return Ok(None);
+    }
+    let silent_since = Instant::now();
+    let period_s = period_us as f64 * 1e-6;
+    let step_v = safety.slew_v_per_s as f64 * period_s;
+    let ramp_ticks = (from_v.abs() as f64 / step_v).ceil();
+    let timeout_ticks = (safety.host_timeout_ms as f64 * 1e-3 / period_s).ceil();
+    let bound_ticks = timeout_ticks + ramp_ticks + 2.0;
+    // Wall-clock patience: an emulator's clock may run slower than the wall's.
+    let deadline = silent_since + Duration::from_secs_f64(bound_ticks * period_s * 20.0 + 2.0);
+    let (mut last, mut steps) = (from_v, 0u32);
+    loop {
+        let Some(r) = link.recv(deadline)? else {
+            problems.push(format!(
+                "no Safe message within {:.1} s of silence",
+                (deadline - silent_since).as_secs_f64()
+            ));
+            return Ok(None);
+        };
+        let Ok(p) = r else { continue };
+        match p.msg {
+            Message::Telemetry { u, flags, .. } if flags & command_flags::SAFE_RAMP != 0 => {
+                steps += 1;
+                let ok = u.abs() <= last.abs()
+                    && (u == 0.0 || u.signum() == from_v.signum())
+                    && ((last - u).abs() as f64) <= step_v * (1.0 + 1e-5);
+                if !ok {
+                    problems.push(format!("ramp to 0 V: {last} V then {u} V (step at most {step_v} V)"));
+                }
+                last = u;
+            }
+            Message::Safe { reason, ticks, period_us: p_us } => {
+                let host_ms = silent_since.elapsed().as_secs_f64() * 1e3;
+                let board_ms = ticks as f64 * p_us as f64 * 1e-3;
+                if reason != SafeReason::HostLost as u8 {
+                    problems.push(format!("safe state for reason {reason}, not the lost host"));
+                }
+                if last != 0.0 {
+                    problems.push(format!("Safe came with the drive at {last} V"));
+                }
+                if ticks as f64 > bound_ticks || p_us != period_us {
+                    problems.push(format!(
+                        "safe state after {ticks} ticks of {p_us} µs (at most {bound_ticks} of {period_us} µs expected)"
+                    ));
+                }
+                return Ok(Some(SafeState { from_v, board_ms, host_ms, ramp_steps: steps }));
+            }
+            _ => {}
+        }
+    }
+}
+
 /// The host's replica of the board's controller, stepped as the board reports.
 struct Shadow {
     controller: Controller,
@@ -303,8 +426,11 @@ where
     if stopped.is_none() {
         return Err(HilError::NoAnswer { request: "Stop", port: link.port_name() });
     }
+    configure(link, &Message::SetSafety(opts.safety), "SetSafety", opts)?;
     configure(link, &Message::SetController(params.clone()), "SetController", opts)?;
-    configure(link, &Message::Start { mode: Mode::Control, samples: n }, "Start", opts)?;
+    let waits0 = diagnostics(link, opts)?.lockstep_waits;
+    let mode = if opts.lockstep { Mode::Lockstep } else { Mode::Control };
+    configure(link, &Message::Start { mode, samples: n }, "Start", opts)?;
     let stats0 = link.stats();
     let injected0 = link.fault_counts();
     if opts.fault_rate > 0.0 {
@@ -418,6 +544,9 @@ where
     if board.samples_done < n {
         problems.push(format!("the board stopped after {} of {n} samples", board.samples_done));
     }
+    let diag = diagnostics(link, opts)?;
+    let lockstep_waits = diag.lockstep_waits.wrapping_sub(waits0);
+    let safe_state = safe_state(link, &opts.safety, diag.drive_v, params.sample_period_us, &mut problems)?;
     while (log.len() as u32) < n {
         apply(&mut log, last_u, InputSource::Held)?;
     }
@@ -493,6 +622,9 @@ where
         injected,
         stale_commands: stale,
         board_faults,
+        lockstep: opts.lockstep,
+        lockstep_waits,
+        safe_state,
         problems,
         log,
     })
@@ -543,10 +675,19 @@ where
 impl HilReport {
     /// The summary line of `--json`.
     pub fn json(&self) -> String {
-        let rmse = if self.rmse_um.is_finite() { format!("{}", self.rmse_um) } else { "null".into() };
+        let num = |x: Option<f64>| match x {
+            Some(v) if v.is_finite() => format!("{v}"),
+            _ => "null".into(),
+        };
         format!(
-            "{{\"samples\": {}, \"samples_accounted\": {}, \"corrupted_frames\": {}, \"lost_frames\": {}, \"rmse_um\": {rmse}}}",
-            self.samples, self.samples_accounted, self.corrupted_frames, self.lost_frames
+            "{{\"samples\": {}, \"samples_accounted\": {}, \"corrupted_frames\": {}, \"lost_frames\": {}, \"rmse_um\": {}, \"safe_state_ms\": {}, \"lockstep\": {}}}",
+            self.samples,
+            self.samples_accounted,
+            self.corrupted_frames,
+            self.lost_frames,
+            num(Some(self.rmse_um)),
+            num(self.safe_state.map(|s| s.board_ms)),
+            self.lockstep
         )
     }
 
@@ -579,7 +720,9 @@ impl HilReport {
              damaged frames: {} sent, {} received; {} taken for intact\n\
              shadow: {} commands compared bit for bit, {} differ\n\
              tracking RMSE: {:.4} µm\n\
-             board: {} tick overruns, {} bytes overflowed, {} compute errors",
+             board: {} tick overruns, {} bytes overflowed, {} compute errors\n\
+             loop: {}\n\
+             safe state: {}",
             self.samples,
             self.samples_accounted,
             self.commands_applied,
@@ -609,6 +752,18 @@ impl HilReport {
             b.tick_overruns,
             b.rx_overflow_bytes,
             b.compute_errors,
+            if self.lockstep {
+                format!("lockstep, the board waited {} ticks for measurements", self.lockstep_waits)
+            } else {
+                "free-running (a measurement later than the next tick is missing)".into()
+            },
+            match self.safe_state {
+                Some(s) => format!(
+                    "host silent, drive {:.3} V to 0 V in {} ramp steps; {:.0} ms from the host's last frame to 0 V (board's count; {:.0} ms on the host's clock to the Safe message)",
+                    s.from_v, s.ramp_steps, s.board_ms, s.host_ms
+                ),
+                None => "not reached (the drive was at 0 V, or see the problems)".into(),
+            },
         )
     }
 }
@@ -706,12 +861,23 @@ mod tests {
         let ideal = without_link(&mut model_plant(), &params(), 3000, opts.settle_samples).unwrap();
         assert!((r.rmse_um - ideal).abs() < 1e-9, "{} vs {ideal}", r.rmse_um);
         assert!(r.rmse_um < 0.5, "{}", r.rmse_um);
+        // Then the host fell silent: 250 ms of timeout, then the ramp at 100 V/s (one step
+        // of 0.1 V per tick) from the last command.
+        let last_u = r.log.last().unwrap().u_v;
+        let s = r.safe_state.expect("the board ramped to 0 V");
+        assert_eq!(s.from_v, last_u);
+        let ramp = (last_u.abs() / 0.1).ceil() as u32;
+        assert!((ramp..=ramp + 1).contains(&s.ramp_steps), "{s:?}");
+        assert!(s.board_ms >= 250.0 && s.board_ms <= 250.0 + ramp as f64 + 2.0, "{s:?}");
+        assert!(r.json().contains(&format!("\"safe_state_ms\": {}", s.board_ms)), "{}", r.json());
     }
 
     #[test]
     fn faults_are_detected_and_every_sample_accounted() {
         let (a, b) = MemoryPort::pair();
-        let opts = HilOptions { fault_rate: 0.01, seed: 7, ..HilOptions::new(3000) };
+        // Free-running: the test board ticks 3 ms after its last tick if no measurement
+        // came (in lockstep every lost frame would cost 20 such ticks).
+        let opts = HilOptions { fault_rate: 0.01, seed: 7, lockstep: false, ..HilOptions::new(3000) };
         let r = run_over(a, b, opts, Duration::from_millis(3));
         assert!(r.problems.is_empty(), "{:?}", r.problems);
         assert_eq!(r.samples_accounted, 3000);

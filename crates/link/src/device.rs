@@ -23,7 +23,7 @@
 //! | `GetDiagnostics` | `Diagnostics` | `Diagnostics` | `Diagnostics` |
 //! | `Start{mode, n}` | `Ack`, run starts (`Fault(NotConfigured)` without parameters) | `Fault(Busy)` | `Fault(Busy)` |
 //! | `Stop` | `Status` | run ends, `Status` | run ends, `Status` |
-//! | `Measurement{k}` | counted stale | kept for the next tick if `k` is the last command's sample, else counted stale | `Fault(Unexpected)` |
+//! | `Measurement{k}` | counted stale | kept for the next tick if `k` is the last command's sample, else counted stale (control and lockstep runs) | `Fault(Unexpected)` |
 //! | `Command{k, u}` | `Fault(Unexpected)` | `Fault(Unexpected)` | plant steps (holding the last `u` over at most [`limits::MAX_CATCH_UP`] missed samples), `Measurement{k, y}`; the same command again: the same answer again; `k` past, too far ahead or `u` outside the drive limits: counted stale |
 //! | a bad frame | `Fault(BadFrame)` | `Fault(BadFrame)` | `Fault(BadFrame)` |
 //!
@@ -37,6 +37,9 @@
 //! it arrived (else steps without it: the compensator holds its adaptation for that sample),
 //! steps the controller and sends `Command{k, u[k]}`; after the last sample it sends its
 //! `Status` and tells the firmware to stop the timer.
+//! A lockstep run ([`Mode::Lockstep`]) is a control run whose tick, when the previous
+//! sample's measurement has not arrived, does nothing (counted in
+//! [`Diagnostics::lockstep_waits`]) for up to [`limits::LOCKSTEP_PATIENCE_TICKS`] ticks.
 
 use super::analog::{FrontEnd, SimulatedActuator};
 use super::frame::SeqTracker;
@@ -321,6 +324,10 @@ pub mod limits {
     pub const FAULT_BURST: u32 = 4;
     /// Ticks per bad-frame answer once the burst is spent.
     pub const FAULT_REFILL_TICKS: u32 = 10;
+    /// Lockstep run: most ticks a step waits for the previous sample's measurement before
+    /// it steps without it (20 ms at 1 kHz: a host that answers at all answers sooner, and
+    /// a lost frame costs no more than this).
+    pub const LOCKSTEP_PATIENCE_TICKS: u32 = 20;
 }
 
 /// Checks the numbers of a [`ControllerParams`] beyond what the compensator checks.
@@ -466,6 +473,10 @@ struct ControlRun {
     /// `y[k-1]` if it arrived for the next tick.
     pending: Option<f32>,
     used: u16,
+    /// [`Mode::Lockstep`]: ticks wait for the measurement.
+    lockstep: bool,
+    /// Ticks waited so far for the pending measurement.
+    waited: u32,
 }
 
 #[derive(Clone, Debug)]
@@ -800,8 +811,10 @@ impl Device {
         };
         let period = self.controller.as_ref().map_or(DEFAULT_PERIOD_US, |p| p.sample_period_us);
         let run = match mode {
-            Mode::Control => ctl(self).map(|ctl| {
-                (Run::Control(ControlRun { ctl, total: samples, pending: None, used: 0 }), Front::Host)
+            Mode::Control | Mode::Lockstep => ctl(self).map(|ctl| {
+                let lockstep = mode == Mode::Lockstep;
+                let run = ControlRun { ctl, total: samples, pending: None, used: 0, lockstep, waited: 0 };
+                (Run::Control(run), Front::Host)
             }),
             Mode::Plant => match &self.plant {
                 None => Err("no plant parameters (send SetPlant first)"),
@@ -995,6 +1008,16 @@ impl Device {
 
     fn control_tick(&mut self, clock: &impl Fn() -> u32, send: &mut impl FnMut(&[u8])) -> TimerRequest {
         let Run::Control(run) = &mut self.run else { return TimerRequest::Keep };
+        if run.lockstep
+            && run.ctl.next_k() > 0
+            && run.pending.is_none()
+            && run.waited < limits::LOCKSTEP_PATIENCE_TICKS
+        {
+            run.waited += 1;
+            self.diag.lockstep_waits = self.diag.lockstep_waits.wrapping_add(1);
+            return TimerRequest::Keep;
+        }
+        run.waited = 0;
         let y_prev = run.pending.take();
         let Some(((k, u, flags), used_now)) =
             Self::step_timed(&mut run.ctl, y_prev, clock, &mut self.diag, &mut self.status)

@@ -17,7 +17,7 @@
 //! | `0x12` | [`Message::Fault`] | board → host | code u8, seq u16, text (≤ 48 bytes UTF-8) |
 //! | `0x13` | [`Message::Telemetry`] | board → host | k u32, u f32 (V), y f32 (µm), flags u8 |
 //! | `0x14` | [`Message::Safe`] | board → host | reason u8, ticks u32, period_us u32 |
-//! | `0x15` | [`Message::Diagnostics`] | board → host | [`Diagnostics`], 74 |
+//! | `0x15` | [`Message::Diagnostics`] | board → host | [`Diagnostics`], 78 |
 //!
 //! Every multi-byte field is little-endian; `f32` is its IEEE 754 bit pattern (so values
 //! cross the link bit for bit); `u64` phase increments are the core's
@@ -235,6 +235,15 @@ pub enum Mode {
     /// reads the sensor, steps, writes the drive and sends [`Message::Telemetry`]. Boards
     /// without converters refuse it.
     Local = 4,
+    /// A [`Mode::Control`] run in lockstep with its host: a tick whose step would run
+    /// without the previous sample's measurement waits for it, at most
+    /// [`super::device::limits::LOCKSTEP_PATIENCE_TICKS`] ticks, then steps without it as
+    /// a control run does at once. For hardware in the loop with a simulated actuator on a
+    /// host that is not real-time (or a board in an emulator whose clock follows the
+    /// host's): the plant's time is the sample index, not the wall clock, so a late answer
+    /// costs time, not a measurement. The cadence of the commands is then the host's; the
+    /// board's own timing is what `Simulated` and `Local` runs measure.
+    Lockstep = 5,
 }
 
 impl Mode {
@@ -245,6 +254,7 @@ impl Mode {
             2 => Some(Mode::Plant),
             3 => Some(Mode::Simulated),
             4 => Some(Mode::Local),
+            5 => Some(Mode::Lockstep),
             _ => None,
         }
     }
@@ -448,6 +458,8 @@ pub struct Diagnostics {
     pub safe_ticks: u32,
     /// The drive now, V.
     pub drive_v: f32,
+    /// Ticks a [`Mode::Lockstep`] run waited for a measurement, since reset.
+    pub lockstep_waits: u32,
 }
 
 /// One message of the protocol.
@@ -573,7 +585,7 @@ const PLANT_LEN: usize = 5 * 4 + MAX_AR * 4 + 8 + 1 + MAX_HARMONICS * 9;
 const STATUS_LEN: usize = 2 + 12 * 4;
 const ORC_LEN: usize = 5 * 4 + 2 + 4 + 1;
 const SAFETY_LEN: usize = 4 * 4;
-const DIAGNOSTICS_LEN: usize = 14 * 4 + 2 * 8 + 2;
+const DIAGNOSTICS_LEN: usize = 15 * 4 + 2 * 8 + 2;
 const _: () = assert!(CONTROLLER_LEN <= MAX_PAYLOAD && PLANT_LEN <= MAX_PAYLOAD);
 const _: () = assert!(4 + MAX_TEXT <= MAX_PAYLOAD);
 
@@ -835,7 +847,8 @@ impl Diagnostics {
         }
         w.u8(self.safe_reason)?;
         w.u32(self.safe_ticks)?;
-        w.f32(self.drive_v)
+        w.f32(self.drive_v)?;
+        w.u32(self.lockstep_waits)
     }
 
     fn read(r: &mut Reader<'_>) -> Result<Self, WireError> {
@@ -858,6 +871,7 @@ impl Diagnostics {
             safe_reason: r.u8()?,
             safe_ticks: r.u32()?,
             drive_v: r.f32()?,
+            lockstep_waits: r.u32()?,
         })
     }
 }
@@ -1003,4 +1017,4 @@ impl Message {
 }
 
 const _: () = assert!(CONTROLLER_LEN == 95 && PLANT_LEN == 59 && STATUS_LEN == 50 && ORC_LEN == 27);
-const _: () = assert!(SAFETY_LEN == 16 && DIAGNOSTICS_LEN == 74 && DIAGNOSTICS_LEN <= MAX_PAYLOAD);
+const _: () = assert!(SAFETY_LEN == 16 && DIAGNOSTICS_LEN == 78 && DIAGNOSTICS_LEN <= MAX_PAYLOAD);

@@ -111,6 +111,7 @@ fn every_message() -> Vec<Message> {
         Message::Fault(Fault::new(FaultCode::Compute, 3, "x")),
         Message::Start { mode: Mode::Simulated, samples: 2000 },
         Message::Start { mode: Mode::Local, samples: 0 },
+        Message::Start { mode: Mode::Lockstep, samples: 7 },
         Message::SetSafety(SafetyParams::DEFAULT),
         Message::GetDiagnostics,
         Message::Telemetry { k: 9, u: -1.5, y: f32::NAN, flags: command_flags::SAFE_RAMP },
@@ -134,6 +135,7 @@ fn every_message() -> Vec<Message> {
             safe_reason: 1,
             safe_ticks: 15,
             drive_v: -0.25,
+            lockstep_waits: 9,
         }),
     ]
 }
@@ -187,7 +189,7 @@ fn layouts_are_checked_on_decode() {
     assert_eq!(Message::decode(kind::MEASUREMENT, &[0; 7]), Err(WireError::BadLength));
     assert_eq!(Message::decode(kind::MEASUREMENT, &[0; 9]), Err(WireError::BadLength));
     assert_eq!(Message::decode(0x7F, &[]), Err(WireError::UnknownKind(0x7F)));
-    assert_eq!(Message::decode(kind::START, &[5, 0, 0, 0, 0]), Err(WireError::BadValue("start mode")));
+    assert_eq!(Message::decode(kind::START, &[6, 0, 0, 0, 0]), Err(WireError::BadValue("start mode")));
     assert_eq!(Message::decode(kind::FAULT, &[9, 0, 0, 0]), Err(WireError::BadValue("fault code")));
     assert_eq!(Message::decode(kind::FAULT, &[1, 0, 0, 2, 0xC3]), Err(WireError::BadLength));
     assert_eq!(
@@ -447,6 +449,62 @@ fn control_run_matches_the_controller_and_reports_measurement_use() {
     // A further tick does nothing.
     assert_eq!(b.tick(), TimerRequest::Keep);
     assert!(b.take().is_empty());
+}
+
+#[test]
+fn lockstep_run_waits_for_each_measurement_within_its_patience() {
+    let p = controller_params(&[(3, 2.0, -1.0)]);
+    let mut b = Bench::new();
+    b.send(Message::SetController(p.clone()));
+    assert_eq!(
+        b.send(Message::Start { mode: Mode::Lockstep, samples: 4 }),
+        TimerRequest::Start { period_us: 1000 }
+    );
+    b.take();
+    let mut reference = Controller::new(&p).unwrap();
+    let command = |msgs: &[Message]| match msgs.first() {
+        Some(Message::Command { k, u, used, .. }) => (*k, u.to_bits(), *used),
+        other => panic!("{other:?}"),
+    };
+    // Sample 0 needs no measurement: it steps at the first tick.
+    b.tick();
+    let want = reference.step(None).unwrap();
+    assert_eq!(command(&b.take()), (0, want.out.u.to_bits(), 0));
+    // y[0] comes three ticks late: the board waits (sends nothing), then steps with it.
+    for _ in 0..3 {
+        b.tick();
+        assert!(b.take().is_empty());
+    }
+    b.send(Message::Measurement { k: 0, y: 1.25 });
+    b.tick();
+    let want = reference.step(Some(1.25)).unwrap();
+    assert_eq!(command(&b.take()), (1, want.out.u.to_bits(), 0b1));
+    // y[1] never comes: after the patience the board steps without it.
+    for _ in 0..limits::LOCKSTEP_PATIENCE_TICKS {
+        b.tick();
+        assert!(b.take().is_empty());
+    }
+    b.tick();
+    let want = reference.step(None).unwrap();
+    assert_eq!(command(&b.take()), (2, want.out.u.to_bits(), 0b10));
+    // A stale measurement (for sample 1) does not release the wait for y[2].
+    b.send(Message::Measurement { k: 1, y: 3.0 });
+    b.tick();
+    assert!(b.take().is_empty());
+    b.send(Message::Measurement { k: 2, y: 2.5 });
+    assert_eq!(b.tick(), TimerRequest::Stop);
+    let want = reference.step(Some(2.5)).unwrap();
+    let msgs = b.take();
+    assert_eq!(command(&msgs), (3, want.out.u.to_bits(), 0b101));
+    match &msgs[1] {
+        Message::Status(s) => {
+            assert_eq!((s.mode, s.samples_done), (Mode::Lockstep as u8, 4));
+            assert_eq!((s.measurements_used, s.measurements_missing, s.measurements_stale), (2, 1, 1));
+        }
+        other => panic!("{other:?}"),
+    }
+    let waits = 3 + limits::LOCKSTEP_PATIENCE_TICKS + 1;
+    assert_eq!(b.dev.diagnostics().lockstep_waits, waits);
 }
 
 #[test]
