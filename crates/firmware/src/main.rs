@@ -55,14 +55,30 @@ static PERIOD_REQUEST_US: AtomicU32 = AtomicU32::new(0);
 /// Ticks handled (for the watchdog's feeding in `idle`).
 static TICKS: AtomicU32 = AtomicU32::new(0);
 
-/// The free-running clock: SysTick (24 bits, counting down at the core clock), read so
-/// that differences of two reads wrap correctly in `u32`: one unit is 1/256 of a SysTick
-/// period, and an interval up to 2²⁴ SysTick periods is measured exactly.
+/// The board's free-running clock (for the intervals between ticks and the cost of the
+/// control step; its unit is calibrated against a spin loop at start-up).
 #[inline(always)]
 pub fn clock() -> u32 {
+    board::clock()
+}
+
+/// A free-running clock on SysTick (24 bits, counting down at the core clock), read so
+/// that differences of two reads wrap correctly in `u32`: one unit is 1/256 of a core
+/// clock, and an interval up to 2²⁴ core clocks is measured exactly. What the boards use,
+/// unless SysTick has another job ([`start_systick_clock`] starts it).
+#[inline(always)]
+pub fn systick_clock() -> u32 {
     // SAFETY: reading SysTick's current value register has no side effect.
     let cvr = unsafe { (*cortex_m::peripheral::SYST::PTR).cvr.read() };
     (!cvr) << 8
+}
+
+/// Starts SysTick as [`systick_clock`]: the core clock, the full 24-bit range, no interrupt.
+pub fn start_systick_clock(syst: &mut cortex_m::peripheral::SYST) {
+    syst.set_clock_source(cortex_m::peripheral::syst::SystClkSource::Core);
+    syst.set_reload(0x00FF_FFFF);
+    syst.clear_current();
+    syst.enable_counter();
 }
 
 /// Queues one encoded frame for the transmitter (whole, or dropped and counted).
@@ -183,12 +199,9 @@ mod app {
         let mut core = cx.core;
         let (saved_reason, saved_drive) = persist::take();
         let watchdog_reset = board::watchdog_reset();
-        // The free-running clock: SysTick on the core clock, full range, no interrupt.
-        core.SYST.set_clock_source(cortex_m::peripheral::syst::SystClkSource::Core);
-        core.SYST.set_reload(0x00FF_FFFF);
-        core.SYST.clear_current();
-        core.SYST.enable_counter();
-        let parts = board::init(BAUD, if saved_reason.is_some() || watchdog_reset { saved_drive } else { 0.0 });
+        let resume_v = if saved_reason.is_some() || watchdog_reset { saved_drive } else { 0.0 };
+        // The free-running clock starts here too.
+        let parts = board::init(BAUD, resume_v, core.SYST, &mut core.SCB);
         let mut device = Device::new();
         if board::HAS_CONVERTERS {
             device = device.with_converters();

@@ -239,9 +239,18 @@ pub struct Parts {
     pub watchdog: Watchdog,
 }
 
-/// Sets up the UART (`baud`, receive interrupt) and the timers. `_drive_v` (the drive to
-/// resume after a reset) has no converter to go to here.
-pub fn init(baud: u32, _drive_v: f32) -> Parts {
+/// The free-running clock: SysTick.
+pub use crate::systick_clock as clock;
+
+/// Sets up the UART (`baud`, receive interrupt), the timers and the free-running clock
+/// (SysTick). `_drive_v` (the drive to resume after a reset) has no converter to go to here.
+pub fn init(
+    baud: u32,
+    _drive_v: f32,
+    mut syst: cortex_m::peripheral::SYST,
+    _scb: &mut cortex_m::peripheral::SCB,
+) -> Parts {
+    crate::start_systick_clock(&mut syst);
     // The CMSDK UART needs BAUDDIV >= 16; QEMU sends at any rate but checks that.
     Reg(uart::BASE + uart::BAUDDIV).write((SYSCLK_HZ / baud.max(1)).max(16));
     Reg(uart::BASE + uart::CTRL).write(uart::CTRL_TX_EN | uart::CTRL_RX_EN | uart::CTRL_RX_INT_EN);

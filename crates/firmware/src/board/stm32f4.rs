@@ -8,19 +8,32 @@
 //! | ADC1, channel 1, 12 bits, 15-cycle sampling | PA1 | – | the sensor ([`boucwen_link::analog::SENSOR`]) |
 //! | DAC channel 1, 12 bits | PA4 | – | the drive ([`boucwen_link::analog::DRIVE`]) |
 //! | IWDG, 50 ms | – | – | fed by `idle` while ticks come |
-//! | TIM3, one update per byte time | – | `PACE` (TIM3) | `emulator` only: paces the transmitter |
+//! | SysTick | – | – | the free-running clock ([`crate::systick_clock`]) |
+//!
+//! The app's `PACE` task is bound to TIM3's line, which nothing raises on this board: a
+//! chip's UART paces its own transmitter (one byte per "transmit empty" interrupt).
 //!
 //! Clocks: 168 MHz from the 8 MHz crystal through the PLL (APB1 42 MHz, its timers
 //! 84 MHz). The sensor's conversion is started by the timer, 5 µs before each tick, so at
 //! the tick the result is in the ADC's data register: the interrupt reads it without
 //! waiting.
 //!
-//! ## `emulator` (QEMU's netduinoplus2)
-//! QEMU models no RCC (the ready bits the crystal and PLL set-up waits for never come) and
-//! no DAC, and its UART sends at once. With `emulator` the clocks stay on the 16 MHz
-//! internal oscillator, the DAC is a register stand-in in RAM (same codes, read back by
-//! the board's diagnostics), and TIM3 paces the transmitter at the baud rate. Nothing else
-//! differs.
+//! ## `emulator` (QEMU 7.2's netduinoplus2)
+//! What QEMU does not model, or models wrongly, is replaced; nothing else differs.
+//! * No RCC (the ready bits the crystal and PLL set-up waits for never come): the clocks
+//!   stay on the 16 MHz internal oscillator.
+//! * No DAC: the DAC is a register stand-in in RAM (same codes).
+//! * The UART sends each byte at once: the transmitter is paced at the baud rate.
+//! * The timers (TIM2–TIM5, `hw/timer/stm32f2xx_timer.c`) count at a fixed 1 GHz whatever
+//!   the prescaler's input, and schedule each update from the absolute virtual time plus
+//!   the time of the last configuration, so the period is not the programmed one and grows
+//!   with the time since start (a 1 ms tick set up seconds after start comes seconds apart:
+//!   the first runs went silent after 48 samples). Their counter, read, is right. So the
+//!   free-running clock is TIM5's counter (1 GHz: one unit per virtual nanosecond, one
+//!   instruction under `-icount shift=0`), and the core's SysTick (modelled at the board's
+//!   168 MHz) is a one-shot timer service ([`emulator`]) that raises the sample tick's
+//!   line (TIM2's, the app's `TICK`) once per period on that clock and sends one byte of
+//!   [`TX`] per byte time.
 
 use crate::{RX, TX};
 use boucwen_link::analog::{AdcCode, DRIVE, DacCode, FrontEnd, SENSOR};
@@ -43,7 +56,7 @@ pub mod pac {
     pub enum Interrupt {
         /// TIM2: the sample tick.
         TICK = 28,
-        /// TIM3: the transmitter's pace.
+        /// TIM3: the app's `PACE` line, never raised on this board.
         PACE = 29,
         /// USART2.
         UART = 38,
@@ -71,8 +84,11 @@ pub struct Tick {
 
 impl Tick {
     /// Ticks every `period_us` µs (1 MHz counter); the ADC is triggered `ADC_LEAD_US`
-    /// before each update.
+    /// before each update. (`emulator`: the timer is programmed all the same, but the
+    /// tick comes from [`emulator`]'s service.)
     pub fn start(&mut self, period_us: u32) {
+        #[cfg(feature = "emulator")]
+        emulator::set_period(period_us);
         let t = &self.tim;
         t.cr1().modify(|_, w| w.cen().clear_bit());
         t.psc().write(|w| w.psc().set((self.timer_clk_hz / 1_000_000 - 1) as u16));
@@ -84,6 +100,7 @@ impl Tick {
         t.ccer().modify(|_, w| w.cc2e().set_bit());
         t.egr().write(|w| w.ug().set_bit());
         t.sr().write(|w| w.uif().clear_bit());
+        #[cfg(not(feature = "emulator"))]
         t.dier().modify(|_, w| w.uie().set_bit());
         t.cr1().modify(|_, w| w.cen().set_bit());
     }
@@ -168,60 +185,116 @@ impl SerialPort {
     }
 }
 
-/// The transmitter's pace (`emulator`): TIM3 updates once per byte time while [`TX`] holds
-/// bytes. On a chip the UART paces itself and this never runs.
-pub struct Pacer {
-    tim: chip::TIM3,
-    running: bool,
-    baud: u32,
-    timer_clk_hz: u32,
-}
+/// The app's `PACE` task on this board: never raised (a chip's UART paces itself; the
+/// emulator's service paces the transmitter from SysTick).
+pub struct Pacer;
 
 impl Pacer {
-    /// Sends one byte of [`TX`]; stops when [`TX`] is empty.
-    pub fn on_interrupt(&mut self) {
-        let fired = self.tim.sr().read().uif().bit_is_set();
-        self.tim.sr().write(|w| w.uif().clear_bit());
-        if self.running && !fired {
-            // A kick while pacing: the timer sends the next byte on time.
-            return;
-        }
-        // SAFETY: USART2's status and data registers; the UART interrupt only reads DR
-        // (receive) and in `emulator` builds never writes it.
-        let usart = unsafe { &*chip::USART2::ptr() };
-        if usart.sr().read().txe().bit_is_set() {
-            match TX.pop() {
-                Some(b) => {
-                    usart.dr().write(|w| w.dr().set(b as u16));
-                }
-                None => {
-                    self.tim.cr1().modify(|_, w| w.cen().clear_bit());
-                    self.running = false;
-                    return;
-                }
-            }
-        }
-        if !self.running {
-            let t = &self.tim;
-            // One update per byte time (ten bit times), counted at the timer clock.
-            t.psc().write(|w| w.psc().set(0));
-            let arr = (self.timer_clk_hz as u64 * 10 / self.baud.max(1) as u64).clamp(2, 0xFFFF) as u16;
-            t.arr().write(|w| w.arr().set(arr - 1));
-            t.egr().write(|w| w.ug().set_bit());
-            t.sr().write(|w| w.uif().clear_bit());
-            t.dier().modify(|_, w| w.uie().set_bit());
-            t.cr1().modify(|_, w| w.cen().set_bit());
-            self.running = true;
-        }
-    }
+    /// Nothing to do.
+    pub fn on_interrupt(&mut self) {}
 }
 
-/// Makes the transmitter look at [`TX`].
+/// Makes the transmitter look at [`TX`] (`emulator`: nothing to do, the service's next
+/// byte time sends what waits).
 pub fn kick_tx() {
-    #[cfg(feature = "emulator")]
-    cortex_m::peripheral::NVIC::pend(pac::Interrupt::PACE);
     #[cfg(not(feature = "emulator"))]
     cortex_m::peripheral::NVIC::pend(pac::Interrupt::UART);
+}
+
+/// The free-running clock: SysTick on a chip.
+#[cfg(not(feature = "emulator"))]
+pub use crate::systick_clock as clock;
+/// The free-running clock: TIM5's counter in QEMU.
+#[cfg(feature = "emulator")]
+pub use emulator::clock;
+
+#[cfg(feature = "emulator")]
+pub mod emulator {
+    //! The timer service of the `emulator` build (see the module docs above for why): the
+    //! core's SysTick interrupts once per byte time of the link (ten bit times at the baud
+    //! rate) and at each interrupt
+    //! * sends one byte of [`TX`] into USART2's data register, as a UART sends one byte per
+    //!   byte time;
+    //! * pends TIM2's line (the app's `TICK`, priority 3) when a sample period has passed
+    //!   since the last tick on the clock (TIM5's counter): the tick comes at most one byte
+    //!   time (21.7 µs at 460,800 baud) after its time, and a service that fell more than a
+    //!   period behind starts again from now (the tick interrupt counts what was missed).
+    //!
+    //! SysTick runs at the link's priority (the app's 2), so it never delays the tick
+    //! interrupt and is held off, like a chip's UART interrupt, while `idle` holds the
+    //! device. It shares only atomics and the transmit queue (whose one consumer it is).
+    //! (SysTick set as a one-shot timer, re-armed for each next event, lost an expiry now
+    //! and then in QEMU 7.2: a periodic reload is what its model keeps.)
+
+    use super::chip;
+    use crate::TX;
+    use core::sync::atomic::{AtomicBool, AtomicU32, Ordering};
+    use cortex_m::peripheral::{NVIC, SCB, SYST, scb::SystemHandler, syst::SystClkSource};
+
+    /// QEMU's STM32 timers' clock (the SoC's fixed `clock-frequency`), Hz.
+    const TIMER_HZ: u64 = 1_000_000_000;
+    /// QEMU's SysTick clock: netduinoplus2's core clock, Hz (QEMU has no RCC to change it).
+    const SYSTICK_HZ: u64 = 168_000_000;
+
+    static PERIOD: AtomicU32 = AtomicU32::new(0);
+    static RESTART: AtomicBool = AtomicBool::new(false);
+    static NEXT_TICK: AtomicU32 = AtomicU32::new(0);
+
+    /// Virtual nanoseconds on TIM5's counter (never configured, so QEMU computes it right).
+    #[inline(always)]
+    pub fn clock() -> u32 {
+        // SAFETY: reading TIM5's counter register has no side effect.
+        unsafe { (*chip::TIM5::ptr()).cnt().read().bits() }
+    }
+
+    /// Starts the service for a link at `baud` (no tick until [`set_period`]).
+    pub fn start(mut syst: SYST, scb: &mut SCB, baud: u32) {
+        let byte_cycles = (10 * SYSTICK_HZ / baud.max(1) as u64).clamp(2, 0x00FF_FFFF) as u32;
+        let prio_bits = super::pac::NVIC_PRIO_BITS;
+        let link_prio = ((1u8 << prio_bits) - 2) << (8 - prio_bits);
+        // SAFETY: SysTick's priority is set before it is enabled; nothing else uses it.
+        unsafe { scb.set_priority(SystemHandler::SysTick, link_prio) };
+        syst.set_clock_source(SystClkSource::Core);
+        syst.set_reload(byte_cycles - 1);
+        syst.clear_current();
+        syst.enable_interrupt();
+        syst.enable_counter();
+    }
+
+    /// Ticks every `period_us` µs from the next byte time on.
+    pub fn set_period(period_us: u32) {
+        let ns = (period_us as u64 * TIMER_HZ / 1_000_000).min(i32::MAX as u64) as u32;
+        PERIOD.store(ns, Ordering::Relaxed);
+        RESTART.store(true, Ordering::Release);
+    }
+
+    #[cortex_m_rt::exception]
+    fn SysTick() {
+        if let Some(b) = TX.pop() {
+            // SAFETY: USART2's data register; in this build only this handler writes it
+            // (the UART interrupt only reads received bytes). QEMU's USART takes a byte at
+            // once, so the previous one is gone a byte time later.
+            unsafe { (*chip::USART2::ptr()).dr().write(|w| w.dr().set(b as u16)) };
+        }
+        let period = PERIOD.load(Ordering::Relaxed);
+        if period == 0 {
+            return;
+        }
+        let now = clock();
+        let due = |t: u32| (now.wrapping_sub(t) as i32) >= 0;
+        let mut next = NEXT_TICK.load(Ordering::Relaxed);
+        if RESTART.swap(false, Ordering::Acquire) {
+            next = now;
+        }
+        if due(next) {
+            NVIC::pend(super::pac::Interrupt::TICK);
+            next = next.wrapping_add(period);
+            if due(next) {
+                next = now.wrapping_add(period);
+            }
+        }
+        NEXT_TICK.store(next, Ordering::Relaxed);
+    }
 }
 
 /// The independent watchdog.
@@ -268,8 +341,9 @@ pub struct Parts {
 }
 
 /// Clocks, pins, USART2 at `baud`, the converters (the DAC starting at `drive_v`, the
-/// drive to resume after a reset), TIM3 and the watchdog.
-pub fn init(baud: u32, drive_v: f32) -> Parts {
+/// drive to resume after a reset), the free-running clock and the watchdog (`emulator`:
+/// the timer service too).
+pub fn init(baud: u32, drive_v: f32, syst: cortex_m::peripheral::SYST, scb: &mut cortex_m::peripheral::SCB) -> Parts {
     // SAFETY: called once, from `init`, before any other use of the peripherals.
     let dp = unsafe { chip::Peripherals::steal() };
     #[cfg(not(feature = "emulator"))]
@@ -282,8 +356,18 @@ pub fn init(baud: u32, drive_v: f32) -> Parts {
         use stm32f4xx_hal::rcc::{Enable, Reset};
         chip::TIM2::enable(&mut rcc);
         chip::TIM2::reset(&mut rcc);
-        chip::TIM3::enable(&mut rcc);
-        chip::TIM3::reset(&mut rcc);
+    }
+    #[cfg(not(feature = "emulator"))]
+    {
+        let mut syst = syst;
+        let _ = scb;
+        crate::start_systick_clock(&mut syst);
+    }
+    #[cfg(feature = "emulator")]
+    {
+        use stm32f4xx_hal::rcc::Enable;
+        chip::TIM5::enable(&mut rcc);
+        emulator::start(syst, scb, baud);
     }
     let gpioa = dp.GPIOA.split(&mut rcc);
 
@@ -330,7 +414,7 @@ pub fn init(baud: u32, drive_v: f32) -> Parts {
     Parts {
         tick: Tick { tim: dp.TIM2, timer_clk_hz },
         serial: SerialPort { serial, paced: cfg!(feature = "emulator") },
-        pacer: Pacer { tim: dp.TIM3, running: false, baud, timer_clk_hz },
+        pacer: Pacer,
         converters: Converters { adc: adc_regs },
         watchdog: Watchdog { iwdg },
     }
