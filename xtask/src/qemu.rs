@@ -341,8 +341,8 @@ fn run_case(
     let steps = diag.steps.max(1) as f64;
     let overhead = diag.clock_overhead_ticks as f64;
     let insns_per_sample = (diag.step_ticks_sum as f64 / steps - overhead) * per;
-    let ticks = diag.ticks.max(1) as f64;
-    let isr_insns_mean = (diag.isr_ticks_sum as f64 / ticks - overhead) * per;
+    // The interrupts of the run's ticks, one control step each.
+    let isr_insns_mean = (diag.isr_ticks_sum as f64 / steps - overhead) * per;
     // Tracking: y the step used is y[k-1].
     let settle = 1500.min(run.samples.len());
     let tail: Vec<f64> = run.samples[settle..]

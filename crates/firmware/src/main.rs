@@ -293,13 +293,17 @@ mod app {
         let missed = local.missed.at(t0);
         let converters = &mut *local.converters;
         cx.shared.device.lock(|device| {
+            let in_run = device.running();
             device.on_tick(missed, converters, &clock, &mut send);
             persist::store_drive(device.drive_v());
             TICKS.fetch_add(1, Ordering::Relaxed);
-            let dt = clock().wrapping_sub(t0);
-            let d = device.diagnostics_mut();
-            d.isr_ticks_max = d.isr_ticks_max.max(dt);
-            d.isr_ticks_sum = d.isr_ticks_sum.wrapping_add(dt as u64);
+            if in_run {
+                // Timed over the ticks of a run (the idle ones cost next to nothing).
+                let dt = clock().wrapping_sub(t0);
+                let d = device.diagnostics_mut();
+                d.isr_ticks_max = d.isr_ticks_max.max(dt);
+                d.isr_ticks_sum = d.isr_ticks_sum.wrapping_add(dt as u64);
+            }
         });
     }
 

@@ -857,7 +857,11 @@ impl Device {
                     self.fault(send, FaultCode::Busy, seq, "the drive is not at 0 V");
                     return TimerRequest::Keep;
                 }
-                // Counters are per run; the link's own (frames) go on.
+                // Counters are per run; the link's own (frames) go on, and so do the
+                // diagnostics' except the timing of ticks and steps.
+                let d = &mut self.diag;
+                (d.ticks, d.missed_ticks, d.isr_ticks_max, d.isr_ticks_sum) = (0, 0, 0, 0);
+                (d.steps, d.step_ticks_max, d.step_ticks_sum) = (0, 0, 0);
                 self.status = Status {
                     state: RunState::Running as u8,
                     mode: mode as u8,

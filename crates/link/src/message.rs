@@ -421,14 +421,16 @@ impl SafeReason {
 /// instructions; on a chip, to cycles of the loop).
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct Diagnostics {
-    /// Sample-timer interrupts handled since reset.
+    /// Sample-timer interrupts handled since the last [`Message::Start`] (or reset): this
+    /// and the timing fields up to `step_ticks_sum` are per run; the others since reset.
     pub ticks: u32,
     /// Sample-timer periods that passed without their interrupt (the handler started more
     /// than 1.5 periods after the previous one).
     pub missed_ticks: u32,
-    /// Longest sample-timer interrupt, clock ticks.
+    /// Longest sample-timer interrupt of a tick that found a run going on, clock ticks.
     pub isr_ticks_max: u32,
-    /// Sum over the interrupts, clock ticks.
+    /// Sum over those interrupts, clock ticks (a `Simulated` or `Local` run steps at every
+    /// one of them: divide by [`Diagnostics::steps`]).
     pub isr_ticks_sum: u64,
     /// Control steps timed.
     pub steps: u32,
