@@ -19,7 +19,7 @@
 //! | `GetStatus` | `Status` | `Status` | `Status` |
 //! | `SetController`, `SetPlant` | validate, `Ack` or `Fault(InvalidParams)` | `Fault(Busy)` | `Fault(Busy)` |
 //! | `SetOrc` | feature `orc`: validate, `Ack`; else `Fault(Unexpected)` | `Fault(Busy)` | `Fault(Busy)` |
-//! | `SetSafety` | validate, `Ack` or `Fault(InvalidParams)` | `Fault(Busy)` | `Fault(Busy)` |
+//! | `SetSafety` | validate, `Ack` or `Fault(InvalidParams)` (`Fault(Busy)` if the drive held is outside the new limits) | `Fault(Busy)` | `Fault(Busy)` |
 //! | `GetDiagnostics` | `Diagnostics` | `Diagnostics` | `Diagnostics` |
 //! | `Start{mode, n}` | `Ack`, run starts (`Fault(NotConfigured)` without parameters) | `Fault(Busy)` | `Fault(Busy)` |
 //! | `Stop` | `Status` | run ends, `Status` | run ends, `Status` |
@@ -202,6 +202,8 @@ impl OnChipPlant {
     /// Applies `u[k]` (V), returns `y[k]` (µm).
     #[inline]
     pub fn step(&mut self, u: f32) -> f32 {
+        #[cfg(test)]
+        super::fuzz::PLANT_STEPS.with(|c| c.set(c.get() + 1));
         self.model.step(&mut self.state, u)
     }
 }
@@ -740,6 +742,10 @@ impl Device {
                 Err(e) => self.fault(send, FaultCode::InvalidParams, seq, e),
             },
             Message::SetSafety(p) if !busy => match check_safety(&p) {
+                Ok(()) if !(self.diag.drive_v >= p.u_min && self.diag.drive_v <= p.u_max) => {
+                    // The drive held between runs would be outside the new limits.
+                    self.fault(send, FaultCode::Busy, seq, "the drive held is outside the new limits")
+                }
                 Ok(()) => {
                     self.safety = p;
                     self.send(send, &Message::Ack { kind: kind::SET_SAFETY, seq });
@@ -944,12 +950,12 @@ impl Device {
         self.status.tick_overruns = self.status.tick_overruns.wrapping_add(missed);
         self.diag.ticks = self.diag.ticks.wrapping_add(1);
         self.diag.missed_ticks = self.diag.missed_ticks.wrapping_add(missed);
-        self.refill = self.refill.saturating_add(1 + missed);
+        self.refill = self.refill.saturating_add(missed.saturating_add(1));
         if self.refill >= limits::FAULT_REFILL_TICKS {
             self.refill = 0;
             self.fault_tokens = (self.fault_tokens + 1).min(limits::FAULT_BURST);
         }
-        self.since_frame = self.since_frame.saturating_add(1 + missed);
+        self.since_frame = self.since_frame.saturating_add(missed.saturating_add(1));
         let timeout_ticks =
             (self.safety.host_timeout_ms as u64 * 1000).div_ceil(self.period_us.max(1) as u64) as u32;
         let driving = matches!(self.run, Run::Control(_) | Run::Front(_)) || self.diag.drive_v != 0.0;

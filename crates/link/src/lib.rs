@@ -149,4 +149,6 @@ impl Decoder {
 }
 
 #[cfg(test)]
+mod fuzz;
+#[cfg(test)]
 mod tests;

@@ -819,3 +819,25 @@ fn the_simulated_actuator_run_is_the_closed_loop_bit_for_bit() {
         y_prev = y;
     }
 }
+
+#[test]
+fn new_drive_limits_that_exclude_the_held_drive_are_refused() {
+    let mut b = Bench { dev: Device::new().with_converters(), seq: 0, out: Vec::new() };
+    b.send(Message::SetController(ControllerParams { fade_samples: 0, ..controller_params(&[]) }));
+    b.send(Message::Start { mode: Mode::Local, samples: 30 });
+    let mut fe = Recorder { driven: Vec::new(), y: Some(0.5) };
+    for _ in 0..30 {
+        b.tick_with(&mut fe);
+    }
+    b.take();
+    let held = b.dev.drive_v();
+    assert!(!b.dev.running() && held.abs() > 0.01, "{held}");
+    // Limits that would leave the held drive outside them: refused, the old ones stay.
+    let tight = SafetyParams { u_min: -held.abs() / 2.0, u_max: held.abs() / 2.0, ..SafetyParams::DEFAULT };
+    b.send(Message::SetSafety(tight));
+    assert!(matches!(&b.take()[..], [Message::Fault(f)] if f.code == FaultCode::Busy), "{held}");
+    // Limits that contain it are taken.
+    let wide = SafetyParams { u_min: -9.0, u_max: 9.0, ..SafetyParams::DEFAULT };
+    b.send(Message::SetSafety(wide));
+    assert!(matches!(&b.take()[..], [Message::Ack { kind: kind::SET_SAFETY, .. }]));
+}
