@@ -8,7 +8,8 @@
 //! cargo xtask qemu --orc                the same with the ORC built in and run too
 //! cargo xtask timing [--json]           the control interrupt's cost and missed ticks under
 //!                                       a burst of damaged frames, the link paced
-//!     (each of qemu, hil, timing takes --board mps2|stm32f4: QEMU's mps2-an386 or
+//! cargo xtask panic [--json]            a panic during a run, the ramp to 0 V after the reset
+//!     (each of qemu, hil, timing, panic takes --board mps2|stm32f4: QEMU's mps2-an386 or
 //!      netduinoplus2, the STM32F4 build with its `emulator` feature)
 //! cargo xtask flash [--build-only]      an STM32F4 board: build, budget, probe-rs
 //! ```
@@ -18,6 +19,7 @@
 mod elf;
 mod flash;
 mod hil;
+mod panic;
 mod qemu;
 mod session;
 mod timing;
@@ -89,6 +91,16 @@ enum Task {
         #[arg(long)]
         json: bool,
     },
+    /// A panic during a run (the firmware's `panic-test` hook), and the ramp of the drive to
+    /// 0 V after the reset that follows.
+    Panic {
+        /// The board (its QEMU machine).
+        #[arg(long, value_enum, default_value = "mps2")]
+        board: tools::Board,
+        /// End with one JSON line: ramp_from_v, ramp_steps, ramp_ms, safe_reason, reset_cause.
+        #[arg(long)]
+        json: bool,
+    },
     /// Build the firmware for an STM32F4 board (feature `stm32f4`), check the budget and
     /// flash it with probe-rs.
     Flash {
@@ -136,6 +148,7 @@ fn main() -> ExitCode {
             finish(hil::run(&hil::Options { board, inject_faults, json, samples, free_running }))
         }
         Task::Timing { board, frames, json } => finish(timing::run(board, frames, json)),
+        Task::Panic { board, json } => finish(panic::run(board, json)),
         Task::Flash { chip, build_only } => finish(flash::run(&flash::Options { chip, build_only })),
     }
 }

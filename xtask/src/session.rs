@@ -1,6 +1,8 @@
 //! A board in QEMU with its link on a pseudo-terminal, and the host's end of that link.
 
 use crate::tools::{self, Board, QEMU};
+use boucwen_hal::transport::{self, Link};
+use boucwen_link::Message;
 use std::io::{BufRead, BufReader};
 use std::path::Path;
 use std::process::{Child, Stdio};
@@ -64,5 +66,22 @@ impl Drop for Session {
         for r in self.readers.drain(..) {
             let _ = r.join();
         }
+    }
+}
+
+/// Sends `m` and waits for its `Ack` (a `Fault` naming it, or no answer, is an error).
+pub fn request_ok<P: transport::Port>(link: &mut Link<P>, m: &Message) -> Result<(), String> {
+    let want = m.kind();
+    let r = link
+        .request(m, 3, Duration::from_secs(2), |seq, a| match a {
+            Message::Ack { kind, seq: s } if *kind == want && *s == seq => Some(Ok(())),
+            Message::Fault(f) if f.seq == seq => Some(Err(format!("{:?}: {}", f.code, f.text))),
+            _ => None,
+        })
+        .map_err(|e| e.to_string())?;
+    match r {
+        Some(Ok(())) => Ok(()),
+        Some(Err(e)) => Err(format!("the board refused kind 0x{want:02x}: {e}")),
+        None => Err(format!("no answer to kind 0x{want:02x}")),
     }
 }

@@ -21,7 +21,7 @@
 //! burst that missed the run, or lost telemetry fail the task.
 
 use crate::qemu::{CASES, frames, insns_per_unit};
-use crate::session::Session;
+use crate::session::{Session, request_ok};
 use crate::tools::{self, Board};
 use boucwen_hal::transport::{self, Link};
 use boucwen_link::message::{Diagnostics, FaultCode, Mode, RunState, SafetyParams, Status};
@@ -51,22 +51,6 @@ fn damaged(i: u32) -> Result<Vec<u8>, String> {
     };
     out.truncate(f.len());
     Ok(out)
-}
-
-fn request_ok<P: transport::Port>(link: &mut Link<P>, m: &Message) -> Result<(), String> {
-    let want = m.kind();
-    let r = link
-        .request(m, 3, Duration::from_secs(2), |seq, a| match a {
-            Message::Ack { kind, seq: s } if *kind == want && *s == seq => Some(Ok(())),
-            Message::Fault(f) if f.seq == seq => Some(Err(format!("{:?}: {}", f.code, f.text))),
-            _ => None,
-        })
-        .map_err(|e| e.to_string())?;
-    match r {
-        Some(Ok(())) => Ok(()),
-        Some(Err(e)) => Err(format!("the board refused kind 0x{want:02x}: {e}")),
-        None => Err(format!("no answer to kind 0x{want:02x}")),
-    }
 }
 
 /// What the host saw of the run.

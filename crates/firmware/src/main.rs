@@ -197,7 +197,7 @@ mod app {
     #[init]
     fn init(cx: init::Context) -> (Shared, Local) {
         let mut core = cx.core;
-        let (saved_reason, saved_drive) = persist::take();
+        let (saved_reason, saved_drive, saved_slew) = persist::take();
         let watchdog_reset = board::watchdog_reset();
         let resume_v = if saved_reason.is_some() || watchdog_reset { saved_drive } else { 0.0 };
         // The free-running clock starts here too.
@@ -217,9 +217,11 @@ mod app {
         d.clock_overhead_ticks = clock().wrapping_sub(t2);
         let reason = if watchdog_reset { Some(boucwen_link::message::SafeReason::Watchdog) } else { saved_reason };
         if let Some(r) = reason {
-            device.begin_safe_state(r, saved_drive);
+            device.begin_safe_state(r, saved_drive, saved_slew);
         }
         board::log_start(reason.map_or(0, |r| r as u8));
+        // A lone delimiter first: the host drops whatever half frame the reset cut off.
+        send(&[0]);
         let mut tick = parts.tick;
         tick.start(device.period_us());
         (
@@ -245,6 +247,10 @@ mod app {
                     let peak = stack_peak();
                     let req = cx.shared.device.lock(|d| {
                         d.diagnostics_mut().stack_peak_bytes = peak;
+                        #[cfg(feature = "panic-test")]
+                        if d.running() && matches!(&packet, Ok(p) if p.msg == boucwen_link::Message::Stop) {
+                            panic!("panic-test: Stop during a run");
+                        }
                         d.on_packet(packet, &mut send)
                     });
                     if let TimerRequest::Start { period_us } = req {
@@ -295,7 +301,7 @@ mod app {
         cx.shared.device.lock(|device| {
             let in_run = device.running();
             device.on_tick(missed, converters, &clock, &mut send);
-            persist::store_drive(device.drive_v());
+            persist::store_drive(device.drive_v(), device.safety().slew_v_per_s);
             TICKS.fetch_add(1, Ordering::Relaxed);
             if in_run {
                 // Timed over the ticks of a run (the idle ones cost next to nothing).

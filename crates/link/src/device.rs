@@ -634,10 +634,20 @@ impl Device {
         self.diag.tx_dropped = self.diag.tx_dropped.saturating_add(1);
     }
 
+    /// The drive limits and safe state in force.
+    pub fn safety(&self) -> SafetyParams {
+        self.safety
+    }
+
     /// Starts the ramp to 0 V from `drive_v` (clamped to the limits; a non-finite value is
-    /// taken as 0 V) on the board's converters: what the firmware calls at start-up after
-    /// a panic or a watchdog reset, with the drive it had saved.
-    pub fn begin_safe_state(&mut self, reason: SafeReason, drive_v: f32) {
+    /// taken as 0 V) on the board's converters at `slew_v_per_s` (the default's if out of
+    /// [`limits::SLEW_V_PER_S`]): what the firmware calls at start-up after a panic or a
+    /// watchdog reset, with the drive and the slew it had saved.
+    pub fn begin_safe_state(&mut self, reason: SafeReason, drive_v: f32, slew_v_per_s: f32) {
+        let (lo, hi) = limits::SLEW_V_PER_S;
+        if slew_v_per_s >= lo && slew_v_per_s <= hi {
+            self.safety.slew_v_per_s = slew_v_per_s;
+        }
         let v = if drive_v.is_finite() { drive_v.clamp(self.safety.u_min, self.safety.u_max) } else { 0.0 };
         self.diag.drive_v = v;
         self.diag.reset_cause = reason as u8;

@@ -751,7 +751,8 @@ fn a_silent_host_ends_a_local_run_and_the_drive_ramps_to_zero() {
 #[test]
 fn after_a_watchdog_reset_the_drive_ramps_from_where_it_was() {
     let mut b = Bench { dev: Device::new().with_converters(), seq: 0, out: Vec::new() };
-    b.dev.begin_safe_state(SafeReason::Watchdog, -7.3);
+    // Saved with a slew of 100 V/s (0.1 V per tick); a saved slew out of range is not used.
+    b.dev.begin_safe_state(SafeReason::Watchdog, -7.3, f32::NAN);
     let mut fe = Recorder::default();
     b.send(Message::Start { mode: Mode::Local, samples: 1 });
     assert!(matches!(&b.take()[..], [Message::Fault(f)] if f.code == FaultCode::Busy));
