@@ -81,8 +81,8 @@ pub fn run(board: Board, json: bool) -> Vec<String> {
             }
         };
         let at = loop {
-            if let Message::Telemetry { k, u, flags, .. } = recv(&mut link)? {
-                if flags & command_flags::SAFE_RAMP == 0 {
+            match recv(&mut link)? {
+                Message::Telemetry { k, u, flags, .. } if flags & command_flags::SAFE_RAMP == 0 => {
                     run.push(u);
                     let window = &run[run.len().saturating_sub(PEAK_WINDOW)..];
                     let peak = window.iter().fold(0.0f32, |m, v| m.max(v.abs()));
@@ -90,6 +90,7 @@ pub fn run(board: Board, json: bool) -> Vec<String> {
                         break k;
                     }
                 }
+                _ => {}
             }
         };
         eprintln!(
