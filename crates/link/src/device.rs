@@ -17,10 +17,11 @@
 //! | received | idle | control run | plant run |
 //! |---|---|---|---|
 //! | `GetStatus` | `Status` | `Status` | `Status` |
-//! | `SetController`, `SetPlant` | validate, `Ack` or `Fault(InvalidParams)` | `Fault(Busy)` | `Fault(Busy)` |
+//! | `SetController`, `SetPlant`, `SetExcitation` | validate, `Ack` or `Fault(InvalidParams)` | `Fault(Busy)` | `Fault(Busy)` |
 //! | `SetOrc` | feature `orc`: validate, `Ack`; else `Fault(Unexpected)` | `Fault(Busy)` | `Fault(Busy)` |
 //! | `SetSafety` | validate, `Ack` or `Fault(InvalidParams)` (`Fault(Busy)` if the drive held is outside the new limits) | `Fault(Busy)` | `Fault(Busy)` |
 //! | `GetDiagnostics` | `Diagnostics` | `Diagnostics` | `Diagnostics` |
+//! | `GetParams` | `Params` | `Params` | `Params` |
 //! | `Start{mode, n}` | `Ack`, run starts (`Fault(NotConfigured)` without parameters) | `Fault(Busy)` | `Fault(Busy)` |
 //! | `Stop` | `Status` | run ends, `Status` | run ends, `Status` |
 //! | `Measurement{k}` | counted stale | kept for the next tick if `k` is the last command's sample, else counted stale (control and lockstep runs) | `Fault(Unexpected)` |
@@ -33,6 +34,12 @@
 //! run, with the on-chip simulated actuator or the board's converters
 //! ([`super::analog::FrontEnd`]) instead of the host, and send [`Message::Telemetry`].
 //!
+//! What a run computes is the last of `SetController` (and `SetOrc`) and `SetExcitation`
+//! the board accepted: the controller, or the excitation ([`super::excitation`]: the board
+//! as data acquisition, the same runs with the excitation's `u[k]` in place of the
+//! controller's). `GetParams` reports which, with the controller's and the safety
+//! parameters as the board holds them.
+//!
 //! At each tick of a control run the board takes the measurement of the previous sample if
 //! it arrived (else steps without it: the compensator holds its adaptation for that sample),
 //! steps the controller and sends `Command{k, u[k]}`; after the last sample it sends its
@@ -42,6 +49,7 @@
 //! [`Diagnostics::lockstep_waits`]) for up to [`limits::LOCKSTEP_PATIENCE_TICKS`] ticks.
 
 use super::analog::{FrontEnd, SimulatedActuator};
+use super::excitation::{Active, BoardParams, Excitation, ExcitationParams};
 use super::frame::SeqTracker;
 use super::message::{
     ControllerParams, Diagnostics, Fault, FaultCode, MAX_AR, MAX_HARMONICS, Message, Mode, OrcParams,
@@ -393,6 +401,8 @@ pub enum TimerRequest {
 #[derive(Clone, Debug)]
 enum Ctl {
     Comp(Controller),
+    /// The board as data acquisition: the excitation, whatever the measurement.
+    Excite(Excitation),
     #[cfg(feature = "orc")]
     Orc(OrcCtl),
 }
@@ -424,6 +434,7 @@ impl Ctl {
     fn next_k(&self) -> u32 {
         match self {
             Ctl::Comp(c) => c.next_k(),
+            Ctl::Excite(e) => e.next_k(),
             #[cfg(feature = "orc")]
             Ctl::Orc(o) => o.k,
         }
@@ -442,6 +453,10 @@ impl Ctl {
                     flags |= command_flags::GUARDED;
                 }
                 Ok((s.k, s.out.u, flags))
+            }
+            Ctl::Excite(e) => {
+                let (k, u) = e.next_sample();
+                Ok((k, u, 0))
             }
             #[cfg(feature = "orc")]
             Ctl::Orc(o) => {
@@ -533,6 +548,9 @@ pub struct Device {
     controller: Option<ControllerParams>,
     plant: Option<PlantParams>,
     orc: Option<OrcParams>,
+    excitation: Option<ExcitationParams>,
+    /// What the next run computes.
+    active: Active,
     safety: SafetyParams,
     converters: bool,
     run: Run,
@@ -565,6 +583,8 @@ impl Device {
             controller: None,
             plant: None,
             orc: None,
+            excitation: None,
+            active: Active::None,
             safety: SafetyParams::DEFAULT,
             converters: false,
             run: Run::Idle,
@@ -675,7 +695,7 @@ impl Device {
     }
 
     fn idle_state(&self) -> u8 {
-        if self.controller.is_some() || self.plant.is_some() {
+        if self.controller.is_some() || self.plant.is_some() || self.excitation.is_some() {
             RunState::Idle as u8
         } else {
             RunState::Unconfigured as u8
@@ -734,9 +754,27 @@ impl Device {
                 let d = Message::Diagnostics(self.diag);
                 self.send(send, &d);
             }
+            Message::GetParams => {
+                let p = Message::Params(BoardParams {
+                    active: self.active,
+                    controller: self.controller.clone(),
+                    safety: self.safety,
+                });
+                self.send(send, &p);
+            }
+            Message::SetExcitation(p) if !busy => match p.validate() {
+                Ok(()) => {
+                    self.excitation = Some(p);
+                    self.active = Active::Excitation;
+                    self.status.state = self.idle_state();
+                    self.send(send, &Message::Ack { kind: kind::SET_EXCITATION, seq });
+                }
+                Err(e) => self.fault(send, FaultCode::InvalidParams, seq, e),
+            },
             Message::SetController(p) if !busy => match Ctl::new(&p, None) {
                 Ok(_) => {
                     self.controller = Some(p);
+                    self.active = Active::Controller;
                     self.orc = None;
                     self.status.state = self.idle_state();
                     self.send(send, &Message::Ack { kind: kind::SET_CONTROLLER, seq });
@@ -765,6 +803,7 @@ impl Device {
             Message::Start { mode, samples } if !busy => return self.start(mode, samples, seq, send),
             Message::SetOrc(o) if !busy => self.set_orc(o, seq, send),
             Message::SetController(_)
+            | Message::SetExcitation(_)
             | Message::SetPlant(_)
             | Message::SetSafety(_)
             | Message::SetOrc(_)
@@ -793,6 +832,7 @@ impl Device {
             | Message::Fault(_)
             | Message::Telemetry { .. }
             | Message::Safe { .. }
+            | Message::Params(_)
             | Message::Diagnostics(_) => {
                 self.fault(send, FaultCode::Unexpected, seq, "a board-to-host message sent to the board")
             }
@@ -809,6 +849,7 @@ impl Device {
         match Ctl::new(c, Some(&o)) {
             Ok(_) => {
                 self.orc = Some(o);
+                self.active = Active::Controller;
                 self.send(send, &Message::Ack { kind: kind::SET_ORC, seq });
             }
             Err(e) => self.fault(send, FaultCode::InvalidParams, seq, e),
@@ -821,11 +862,17 @@ impl Device {
     }
 
     fn start(&mut self, mode: Mode, samples: u32, seq: u16, send: &mut impl FnMut(&[u8])) -> TimerRequest {
-        let ctl = |d: &Self| match &d.controller {
-            None => Err("no controller parameters (send SetController first)"),
-            Some(p) => Ctl::new(p, d.orc.as_ref()).map_err(|_| "controller parameters rejected"),
+        let ctl = |d: &Self| match (d.active, &d.controller, &d.excitation) {
+            (Active::Excitation, _, Some(e)) => {
+                Excitation::new(e).map(Ctl::Excite).map_err(|_| "excitation parameters rejected")
+            }
+            (_, None, _) => Err("no controller parameters (send SetController first)"),
+            (_, Some(p), _) => Ctl::new(p, d.orc.as_ref()).map_err(|_| "controller parameters rejected"),
         };
-        let period = self.controller.as_ref().map_or(DEFAULT_PERIOD_US, |p| p.sample_period_us);
+        let period = match (self.active, &self.excitation) {
+            (Active::Excitation, Some(e)) => e.sample_period_us,
+            _ => self.controller.as_ref().map_or(DEFAULT_PERIOD_US, |p| p.sample_period_us),
+        };
         let run = match mode {
             Mode::Control | Mode::Lockstep => ctl(self).map(|ctl| {
                 let lockstep = mode == Mode::Lockstep;

@@ -189,6 +189,20 @@ fn safety() -> impl Strategy<Value = SafetyParams> {
     })
 }
 
+/// Excitations with hostile amplitudes, periods, fades and increments.
+fn excitation() -> impl Strategy<Value = crate::excitation::ExcitationParams> {
+    let tone = (any::<u64>(), hostile_f32(), any::<u32>()).prop_map(|(inc, amplitude_v, phase)| {
+        crate::excitation::Tone { drive: Oscillator::from_increment(inc), amplitude_v, phase }
+    });
+    (hostile_u32(), hostile_u32(), prop::collection::vec(tone, 0..=crate::excitation::MAX_TONES)).prop_map(
+        |(sample_period_us, fade_samples, tones)| crate::excitation::ExcitationParams {
+            sample_period_us,
+            fade_samples,
+            tones: tones.into_iter().collect(),
+        },
+    )
+}
+
 fn orc() -> impl Strategy<Value = OrcParams> {
     (
         prop::array::uniform5(hostile_f32()),
@@ -230,6 +244,8 @@ fn message() -> impl Strategy<Value = Message> {
         1 => Just(Message::Stop),
         1 => Just(Message::GetStatus),
         1 => Just(Message::GetDiagnostics),
+        1 => Just(Message::GetParams),
+        1 => excitation().prop_map(Message::SetExcitation),
         1 => (any::<u8>(), any::<u16>()).prop_map(|(kind, seq)| Message::Ack { kind, seq }),
         1 => (hostile_u32(), hostile_f32(), hostile_f32(), any::<u8>())
             .prop_map(|(k, u, y, flags)| Message::Telemetry { k, u, y, flags }),

@@ -49,6 +49,7 @@ pub mod analog;
 pub mod cobs;
 pub mod crc;
 pub mod device;
+pub mod excitation;
 pub mod frame;
 pub mod message;
 

@@ -12,12 +12,15 @@
 //! | `0x08` | [`Message::SetOrc`] | host → board | [`OrcParams`], 27 |
 //! | `0x09` | [`Message::SetSafety`] | host → board | [`SafetyParams`], 16 |
 //! | `0x0A` | [`Message::GetDiagnostics`] | host → board | 0 |
+//! | `0x0B` | [`Message::GetParams`] | host → board | 0 |
+//! | `0x0C` | [`Message::SetExcitation`] | host → board | [`ExcitationParams`], 105 |
 //! | `0x10` | [`Message::Ack`] | board → host | kind u8, seq u16 |
 //! | `0x11` | [`Message::Status`] | board → host | [`Status`], 50 |
 //! | `0x12` | [`Message::Fault`] | board → host | code u8, seq u16, text (≤ 48 bytes UTF-8) |
 //! | `0x13` | [`Message::Telemetry`] | board → host | k u32, u f32 (V), y f32 (µm), flags u8 |
 //! | `0x14` | [`Message::Safe`] | board → host | reason u8, ticks u32, period_us u32 |
 //! | `0x15` | [`Message::Diagnostics`] | board → host | [`Diagnostics`], 78 |
+//! | `0x16` | [`Message::Params`] | board → host | [`BoardParams`], 113 |
 //!
 //! Every multi-byte field is little-endian; `f32` is its IEEE 754 bit pattern (so values
 //! cross the link bit for bit); `u64` phase increments are the core's
@@ -27,6 +30,7 @@
 //! value the board refuses.
 
 use super::WireError;
+use super::excitation::{BoardParams, ExcitationParams};
 use super::frame::MAX_PAYLOAD;
 use boucwen_core::Error;
 use boucwen_core::compensator::{CompensatorConfig, DirectInverse, HarmonicSpec, Saturation};
@@ -385,6 +389,17 @@ pub struct SafetyParams {
 }
 
 impl SafetyParams {
+    pub(crate) fn write(&self, w: &mut Writer<'_>) -> Result<(), WireError> {
+        for v in [self.u_min, self.u_max, self.slew_v_per_s] {
+            w.f32(v)?;
+        }
+        w.u32(self.host_timeout_ms)
+    }
+
+    pub(crate) fn read(r: &mut Reader<'_>) -> Result<Self, WireError> {
+        Ok(Self { u_min: r.f32()?, u_max: r.f32()?, slew_v_per_s: r.f32()?, host_timeout_ms: r.u32()? })
+    }
+
     /// ±10 V, 100 V/s (10 V to 0 in 0.1 s), host lost after 250 ms.
     pub const DEFAULT: Self = Self { u_min: -10.0, u_max: 10.0, slew_v_per_s: 100.0, host_timeout_ms: 250 };
 }
@@ -543,6 +558,14 @@ pub enum Message {
     },
     /// The board's timing and health figures.
     Diagnostics(Diagnostics),
+    /// Asks for a [`Message::Params`]: the parameters in force, to compare with what was
+    /// sent.
+    GetParams,
+    /// Configures an excitation that the next runs drive instead of the controller (the
+    /// board as data acquisition; answered by [`Message::Ack`] or [`Message::Fault`]).
+    SetExcitation(ExcitationParams),
+    /// The parameters in force on the board.
+    Params(BoardParams),
 }
 
 /// Message kinds (the byte after the sequence number).
@@ -567,6 +590,10 @@ pub mod kind {
     pub const SET_SAFETY: u8 = 0x09;
     /// [`super::Message::GetDiagnostics`]
     pub const GET_DIAGNOSTICS: u8 = 0x0A;
+    /// [`super::Message::GetParams`]
+    pub const GET_PARAMS: u8 = 0x0B;
+    /// [`super::Message::SetExcitation`]
+    pub const SET_EXCITATION: u8 = 0x0C;
     /// [`super::Message::Ack`]
     pub const ACK: u8 = 0x10;
     /// [`super::Message::Status`]
@@ -579,75 +606,78 @@ pub mod kind {
     pub const SAFE: u8 = 0x14;
     /// [`super::Message::Diagnostics`]
     pub const DIAGNOSTICS: u8 = 0x15;
+    /// [`super::Message::Params`]
+    pub const PARAMS: u8 = 0x16;
 }
 
 /// Payload lengths of the fixed layouts.
-const CONTROLLER_LEN: usize = 5 * 4 + MAX_AR * 4 + 8 + 4 + 4 + 4 + 1 + MAX_HARMONICS * 9 + 3 * 4 + 2 * 4 + 4;
+pub(crate) const CONTROLLER_LEN: usize =
+    5 * 4 + MAX_AR * 4 + 8 + 4 + 4 + 4 + 1 + MAX_HARMONICS * 9 + 3 * 4 + 2 * 4 + 4;
 const PLANT_LEN: usize = 5 * 4 + MAX_AR * 4 + 8 + 1 + MAX_HARMONICS * 9;
 const STATUS_LEN: usize = 2 + 12 * 4;
 const ORC_LEN: usize = 5 * 4 + 2 + 4 + 1;
-const SAFETY_LEN: usize = 4 * 4;
+pub(crate) const SAFETY_LEN: usize = 4 * 4;
 const DIAGNOSTICS_LEN: usize = 15 * 4 + 2 * 8 + 2;
 const _: () = assert!(CONTROLLER_LEN <= MAX_PAYLOAD && PLANT_LEN <= MAX_PAYLOAD);
 const _: () = assert!(4 + MAX_TEXT <= MAX_PAYLOAD);
 
 /// Little-endian writer over a payload buffer.
-struct Writer<'a> {
+pub(crate) struct Writer<'a> {
     buf: &'a mut [u8],
     at: usize,
 }
 
 impl Writer<'_> {
-    fn bytes(&mut self, b: &[u8]) -> Result<(), WireError> {
+    pub(crate) fn bytes(&mut self, b: &[u8]) -> Result<(), WireError> {
         let dst = self.buf.get_mut(self.at..self.at + b.len()).ok_or(WireError::TooLong)?;
         dst.copy_from_slice(b);
         self.at += b.len();
         Ok(())
     }
-    fn u8(&mut self, v: u8) -> Result<(), WireError> {
+    pub(crate) fn u8(&mut self, v: u8) -> Result<(), WireError> {
         self.bytes(&[v])
     }
-    fn u16(&mut self, v: u16) -> Result<(), WireError> {
+    pub(crate) fn u16(&mut self, v: u16) -> Result<(), WireError> {
         self.bytes(&v.to_le_bytes())
     }
-    fn u32(&mut self, v: u32) -> Result<(), WireError> {
+    pub(crate) fn u32(&mut self, v: u32) -> Result<(), WireError> {
         self.bytes(&v.to_le_bytes())
     }
-    fn u64(&mut self, v: u64) -> Result<(), WireError> {
+    pub(crate) fn u64(&mut self, v: u64) -> Result<(), WireError> {
         self.bytes(&v.to_le_bytes())
     }
-    fn f32(&mut self, v: f32) -> Result<(), WireError> {
+    pub(crate) fn f32(&mut self, v: f32) -> Result<(), WireError> {
         self.bytes(&v.to_bits().to_le_bytes())
     }
 }
 
 /// Little-endian reader over a payload; every read checks the length.
-struct Reader<'a> {
+pub(crate) struct Reader<'a> {
     buf: &'a [u8],
     at: usize,
 }
 
 impl<'a> Reader<'a> {
-    fn take<const N: usize>(&mut self) -> Result<[u8; N], WireError> {
+    pub(crate) fn take<const N: usize>(&mut self) -> Result<[u8; N], WireError> {
         let src = self.buf.get(self.at..self.at + N).ok_or(WireError::BadLength)?;
         self.at += N;
         let mut out = [0u8; N];
         out.copy_from_slice(src);
         Ok(out)
     }
-    fn u8(&mut self) -> Result<u8, WireError> {
+    pub(crate) fn u8(&mut self) -> Result<u8, WireError> {
         Ok(self.take::<1>()?[0])
     }
-    fn u16(&mut self) -> Result<u16, WireError> {
+    pub(crate) fn u16(&mut self) -> Result<u16, WireError> {
         Ok(u16::from_le_bytes(self.take()?))
     }
-    fn u32(&mut self) -> Result<u32, WireError> {
+    pub(crate) fn u32(&mut self) -> Result<u32, WireError> {
         Ok(u32::from_le_bytes(self.take()?))
     }
-    fn u64(&mut self) -> Result<u64, WireError> {
+    pub(crate) fn u64(&mut self) -> Result<u64, WireError> {
         Ok(u64::from_le_bytes(self.take()?))
     }
-    fn f32(&mut self) -> Result<f32, WireError> {
+    pub(crate) fn f32(&mut self) -> Result<f32, WireError> {
         Ok(f32::from_bits(self.u32()?))
     }
     fn rest(&mut self) -> &'a [u8] {
@@ -696,7 +726,7 @@ fn read_count(r: &mut Reader<'_>) -> Result<usize, WireError> {
 }
 
 impl ControllerParams {
-    fn write(&self, w: &mut Writer<'_>) -> Result<(), WireError> {
+    pub(crate) fn write(&self, w: &mut Writer<'_>) -> Result<(), WireError> {
         write_model(w, &self.model)?;
         w.u64(self.drive.increment())?;
         w.u32(self.sample_period_us)?;
@@ -720,7 +750,7 @@ impl ControllerParams {
         w.f32(self.uc_max)
     }
 
-    fn read(r: &mut Reader<'_>) -> Result<Self, WireError> {
+    pub(crate) fn read(r: &mut Reader<'_>) -> Result<Self, WireError> {
         let model = read_model(r)?;
         let drive = Oscillator::from_increment(r.u64()?);
         let sample_period_us = r.u32()?;
@@ -895,6 +925,9 @@ impl Message {
             Message::Telemetry { .. } => kind::TELEMETRY,
             Message::Safe { .. } => kind::SAFE,
             Message::Diagnostics(_) => kind::DIAGNOSTICS,
+            Message::GetParams => kind::GET_PARAMS,
+            Message::SetExcitation(_) => kind::SET_EXCITATION,
+            Message::Params(_) => kind::PARAMS,
             Message::Ack { .. } => kind::ACK,
             Message::Status(_) => kind::STATUS,
             Message::Fault(_) => kind::FAULT,
@@ -905,13 +938,10 @@ impl Message {
     pub fn encode_payload(&self, out: &mut [u8; MAX_PAYLOAD]) -> Result<usize, WireError> {
         let mut w = Writer { buf: out, at: 0 };
         match self {
-            Message::GetStatus | Message::Stop | Message::GetDiagnostics => {}
-            Message::SetSafety(p) => {
-                for v in [p.u_min, p.u_max, p.slew_v_per_s] {
-                    w.f32(v)?;
-                }
-                w.u32(p.host_timeout_ms)?;
-            }
+            Message::GetStatus | Message::Stop | Message::GetDiagnostics | Message::GetParams => {}
+            Message::SetSafety(p) => p.write(&mut w)?,
+            Message::SetExcitation(p) => p.write(&mut w)?,
+            Message::Params(p) => p.write(&mut w)?,
             Message::Telemetry { k, u, y, flags } => {
                 w.u32(*k)?;
                 w.f32(*u)?;
@@ -969,12 +999,10 @@ impl Message {
         let msg = match kind {
             kind::GET_STATUS => Message::GetStatus,
             kind::GET_DIAGNOSTICS => Message::GetDiagnostics,
-            kind::SET_SAFETY => Message::SetSafety(SafetyParams {
-                u_min: r.f32()?,
-                u_max: r.f32()?,
-                slew_v_per_s: r.f32()?,
-                host_timeout_ms: r.u32()?,
-            }),
+            kind::SET_SAFETY => Message::SetSafety(SafetyParams::read(&mut r)?),
+            kind::GET_PARAMS => Message::GetParams,
+            kind::SET_EXCITATION => Message::SetExcitation(ExcitationParams::read(&mut r)?),
+            kind::PARAMS => Message::Params(BoardParams::read(&mut r)?),
             kind::TELEMETRY => Message::Telemetry { k: r.u32()?, u: r.f32()?, y: r.f32()?, flags: r.u8()? },
             kind::SAFE => Message::Safe { reason: r.u8()?, ticks: r.u32()?, period_us: r.u32()? },
             kind::DIAGNOSTICS => Message::Diagnostics(Diagnostics::read(&mut r)?),
