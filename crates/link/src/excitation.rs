@@ -88,7 +88,8 @@ impl ExcitationParams {
             }
             sum += t.amplitude_v.abs();
         }
-        if !(sum <= limits::U_MAX_V) {
+        // Every amplitude is finite, so the sum is not NaN (an overflow to ∞ is caught).
+        if sum > limits::U_MAX_V {
             return Err(Error::OutOfRange("excitation amplitude (sum at most 1000 V)"));
         }
         Ok(())
