@@ -19,7 +19,7 @@
 //! 2. **Harmonic order.** The enhanced model gets a branch of order `n` where the data call
 //!    for one: by default the odd harmonic holding the largest share of the residual of the
 //!    extended output-error fit (on the fitting half), if that share is at least
-//!    [`MIN_HARMONIC_SHARE`] and its amplitude at least [`MIN_HARMONIC_REL`] of the output's
+//!    [`design::MIN_HARMONIC_SHARE`] and its amplitude at least [`MIN_HARMONIC_REL`] of the output's
 //!    fundamental; with [`HarmonicChoice::Paper`],
 //!    the paper's table (5th at 14 Hz, 3rd at 18–28 Hz). Where no branch is chosen the
 //!    enhanced model *is* the extended model and the proposed controller *is* `u_f`, and the
@@ -29,19 +29,21 @@
 //!    20/21), each with the models of both identification methods; the RMSE is taken after
 //!    the settling time (the paper: after 20 s of 100 s). As in the paper, `u_f` alone is
 //!    synthesised from the extended model. The proposed law cancels the harmonic that the
-//!    tracking error under `u_f` shows (the paper's Fig. 13 reasoning: the odd harmonic
-//!    holding the largest share of that error, at least [`MIN_HARMONIC_SHARE`] of its power
-//!    and [`MIN_CANCEL_REL`] of `α`); its `u_f` comes from the first two equations of the
+//!    tracking error under `u_f` shows ([`design::cancelled_harmonic`], the rule `boucwen
+//!    hil` uses too); its `u_f` comes from the first two equations of the
 //!    enhanced model when that model carries the same harmonic and is invertible, else from
 //!    the extended model. Where no harmonic qualifies the proposed law is `u_f` itself.
 
 use crate::analysis;
-use crate::experiment::{self, CompensationSettings, Peer, Trace};
+use crate::design::{self, PROBE_REL, PROBE_SECONDS, ResponseSource};
+use crate::experiment::{self, CompensationSettings, ExperimentError, Peer, Trace};
 use crate::fit::{self, FitError, HostModel, ModelSpec, OeOptions};
 use boucwen_core::compensator::{HarmonicSpec, PhaseRule};
 use boucwen_sim::{Bimorph, Scenario, SimError};
 use rayon::prelude::*;
+use serde::Serialize;
 use std::fmt;
+use std::path::PathBuf;
 
 /// How the harmonic order of the enhanced model is chosen.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -51,26 +53,6 @@ pub enum HarmonicChoice {
     /// The paper's table: 5th at 14 Hz, 3rd at 18–28 Hz, none elsewhere.
     Paper,
 }
-
-/// Where the harmonic cancellation takes the actuator's response at `n·f` from.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub enum ResponseSource {
-    /// The identified model's frequency response (small-signal structure, with the delay).
-    Model,
-    /// The paper's table (eqs. 22/23): 0 below the flip frequency, π above.
-    Table {
-        /// The flip frequency (Hz; 66 in the paper).
-        flip_hz: f64,
-    },
-    /// The response identified at the operating point: the identification drive plus a
-    /// small probe at `n·f`, for [`PROBE_SECONDS`].
-    Probe,
-}
-
-/// Length of a probe run (s).
-pub const PROBE_SECONDS: f64 = 3.0;
-/// Probe amplitude relative to the drive amplitude.
-pub const PROBE_REL: f64 = 0.01;
 
 /// Settings of a sweep.
 #[derive(Clone, Debug)]
@@ -174,8 +156,8 @@ pub fn identify_structure(scenario: &Scenario, drive_amplitude: f64) -> Result<S
     Ok(Structure { model, shape, rms_fit_um: fit.rms_fit, resonance_hz })
 }
 
-/// One frequency's results. `NaN` where a model was unstable in free run.
-#[derive(Clone, Debug, PartialEq)]
+/// One frequency's results. `NaN` where a model was unstable in free run (`null` in JSON).
+#[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct Row {
     /// Drive frequency (Hz).
     pub freq_hz: f64,
@@ -270,8 +252,28 @@ pub enum SweepError {
     Fit(f64, FitError),
     /// A core error at a frequency (invalid frequency, compensator parameters).
     Core(f64, boucwen_core::Error),
-    /// The options are unusable.
-    Options(String),
+    /// A tracking run failed at a frequency (the plant or the controller).
+    Experiment(f64, ExperimentError),
+    /// A probe of the actuator's response failed at a frequency.
+    Probe(f64, design::DesignError),
+    /// No frequency to sweep.
+    NoFrequencies,
+    /// The frequency range is unusable (not finite, not increasing, or too many).
+    Range {
+        /// Lowest frequency, Hz.
+        from: f64,
+        /// Highest frequency, Hz.
+        to: f64,
+        /// Step, Hz.
+        step: f64,
+    },
+    /// The record length (s) is not a positive number.
+    Seconds(f64),
+    /// The record length (s) leaves fewer than 2 periods of the lowest frequency in the
+    /// held-out half.
+    TooShort(f64),
+    /// The record length (s) gives fewer than 1000 samples.
+    TooFewSamples(f64),
 }
 
 impl fmt::Display for SweepError {
@@ -280,7 +282,20 @@ impl fmt::Display for SweepError {
             SweepError::Sim(e) => write!(f, "virtual bimorph: {e}"),
             SweepError::Fit(hz, e) => write!(f, "at {hz} Hz: {e}"),
             SweepError::Core(hz, e) => write!(f, "at {hz} Hz: {e}"),
-            SweepError::Options(s) => write!(f, "{s}"),
+            SweepError::Experiment(hz, e) => write!(f, "at {hz} Hz: {e}"),
+            SweepError::Probe(hz, e) => write!(f, "at {hz} Hz: probe: {e}"),
+            SweepError::NoFrequencies => f.write_str("no frequencies to sweep"),
+            SweepError::Range { from, to, step } => write!(
+                f,
+                "need finite 0 < --from <= --to and --step > 0, at most {MAX_FREQUENCIES} frequencies \
+                 (got --from {from} --to {to} --step {step})"
+            ),
+            SweepError::Seconds(s) => write!(f, "--seconds must be > 0 (got {s})"),
+            SweepError::TooShort(s) => write!(
+                f,
+                "--seconds {s} is too short: the held-out half must hold at least 2 periods of the lowest frequency"
+            ),
+            SweepError::TooFewSamples(s) => write!(f, "--seconds {s} gives fewer than 1000 samples"),
         }
     }
 }
@@ -310,37 +325,21 @@ fn choose_order(
             let skip = (fit_end / 5).min(2000);
             let r: Vec<f64> = y[skip..fit_end].iter().zip(&sim[skip..fit_end]).map(|(a, b)| a - b).collect();
             let out_amp = analysis::harmonics(&y[skip..fit_end], f, ts, 1).first().map_or(0.0, |t| t.amp);
-            Ok(dominant_odd_harmonic(&r, f, ts, MIN_HARMONIC_SHARE, MIN_HARMONIC_REL * out_amp)
-                .unwrap_or((0, 0.0)))
+            Ok(analysis::dominant_odd_harmonic(
+                &r,
+                f,
+                ts,
+                design::MIN_HARMONIC_SHARE,
+                MIN_HARMONIC_REL * out_amp,
+            )
+            .unwrap_or((0, 0.0)))
         }
     }
 }
 
-/// Smallest share of the error power a harmonic must hold to be chosen.
-pub const MIN_HARMONIC_SHARE: f64 = 0.2;
 /// Smallest amplitude of a harmonic the model gets a branch for, relative to the output's
 /// fundamental: below this a term is not worth it.
 pub const MIN_HARMONIC_REL: f64 = 0.02;
-/// Smallest amplitude of a harmonic the proposed law cancels, relative to `α`: a change of
-/// controller must be worth its side effects (the cancellation input passes through the
-/// loop and leaves a little at other frequencies).
-pub const MIN_CANCEL_REL: f64 = 0.05;
-
-/// The dominant odd harmonic (order ≥ 3, below Nyquist) of `x`, if it holds at least
-/// `min_share` of `x`'s power and has an amplitude of at least `min_amp`.
-pub fn dominant_odd_harmonic(x: &[f64], f: f64, ts: f64, min_share: f64, min_amp: f64) -> Option<(u32, f64)> {
-    let power = analysis::rms(x).powi(2);
-    let kmax = ((0.5 / ts) / f).floor() as usize;
-    analysis::harmonics(x, f, ts, kmax.min(40))
-        .iter()
-        .enumerate()
-        .map(|(i, t)| ((i + 1) as u32, t.amp))
-        .filter(|(n, _)| n % 2 == 1 && *n >= 3)
-        .map(|(n, amp)| (n, amp * amp / 2.0 / power.max(1e-300), amp))
-        .max_by(|a, b| a.1.total_cmp(&b.1))
-        .filter(|&(_, share, amp)| share >= min_share && amp >= min_amp)
-        .map(|(n, share, _)| (n, share))
-}
 
 /// The harmonic for the proposed law, from the tracking error under `u_f` alone.
 fn cancel_order(choice: HarmonicChoice, f: f64, ts: f64, uf: &Trace, settle: usize, alpha: f64) -> u32 {
@@ -349,8 +348,7 @@ fn cancel_order(choice: HarmonicChoice, f: f64, ts: f64, uf: &Trace, settle: usi
         HarmonicChoice::Auto => {
             let e = uf.error();
             let from = settle.min(e.len());
-            dominant_odd_harmonic(&e[from..], f, ts, MIN_HARMONIC_SHARE, MIN_CANCEL_REL * alpha.abs())
-                .map_or(0, |(n, _)| n)
+            design::cancelled_harmonic(&e[from..], f, ts, alpha).unwrap_or(0)
         }
     }
 }
@@ -367,13 +365,24 @@ fn paper_order(f: f64, ts: f64) -> u32 {
     if n as f64 * f < 0.5 / ts { n } else { 0 }
 }
 
+/// What one frequency of the sweep gives.
+#[derive(Clone, Debug)]
+pub struct FrequencyResult {
+    /// The row of the table.
+    pub row: Row,
+    /// The signals, if they were kept.
+    pub traces: Option<Traces>,
+    /// Actuator time simulated (s).
+    pub actuator_s: f64,
+}
+
 /// One frequency of the sweep.
 pub fn run_frequency(
     opts: &SweepOptions,
     structure: &Structure,
     index: usize,
     keep_traces: bool,
-) -> Result<(Row, Option<Traces>, f64), SweepError> {
+) -> Result<FrequencyResult, SweepError> {
     let f = opts.freqs[index];
     let ts = opts.scenario.sampling.ts_s;
     let n = (opts.seconds / ts).round() as usize;
@@ -457,10 +466,9 @@ pub fn run_frequency(
                 None => {
                     let m = ((PROBE_SECONDS / ts).round() as usize).min(n);
                     let eps = PROBE_REL * opts.drive_amplitude;
-                    let up = experiment::with_probe(&u[..m], f, order, eps, ts).map_err(core)?;
-                    let yp = plant(5)?.run(&up)?;
+                    let g = design::probe_response_on(&mut plant(5)?, &u[..m], &y[..m], f, order, eps)
+                        .map_err(|e| SweepError::Probe(f, e))?;
                     samples += m;
-                    let g = experiment::probe_response(&y[..m], &yp, f, order, eps, ts).map_err(core)?;
                     probed.push((order, g));
                     g
                 }
@@ -469,9 +477,8 @@ pub fn run_frequency(
         Ok(vec![HarmonicSpec { order, response }])
     };
     let tracking = |model: &HostModel, h: &[HarmonicSpec<f64>], run: u64| -> Result<Trace, SweepError> {
-        let mut b = plant(run)?;
-        let mut p = |uk: f64| b.step(uk).unwrap_or(f64::NAN);
-        experiment::track(&mut p, model, h, alpha, f, ts, n, set).map_err(core)
+        experiment::track(&mut plant(run)?, model, h, alpha, f, n, set)
+            .map_err(|e| SweepError::Experiment(f, e))
     };
     let finite = |x: f64| if x.is_finite() { x } else { f64::NAN };
     // u_f alone is synthesised from the extended model. The proposed law cancels the
@@ -492,9 +499,8 @@ pub fn run_frequency(
     samples += 2 * n + usize::from(n_rls > 0) * n + usize::from(n_oe > 0) * n;
     // The peers, tuned from the output-error extended model by the core's rule.
     let peer = |p: Peer, run: u64| -> Result<Trace, SweepError> {
-        let mut b = plant(run)?;
-        let mut step = |uk: f64| b.step(uk).unwrap_or(f64::NAN);
-        experiment::track_peer(&mut step, &ext_oe, p, alpha, f, ts, n, set).map_err(core)
+        experiment::track_peer(&mut plant(run)?, &ext_oe, p, alpha, f, n, set)
+            .map_err(|e| SweepError::Experiment(f, e))
     };
     let open = peer(Peer::OpenLoop, 6)?;
     let pi = peer(Peer::Pi, 7)?;
@@ -519,7 +525,7 @@ pub fn run_frequency(
         rmse_pi_um: finite(pi.rmse_after(settle)),
         rmse_orc_um: finite(orc.rmse_after(settle)),
     };
-    let traces = keep_traces.then(|| Traces {
+    let traces = keep_traces.then_some(Traces {
         freq_hz: f,
         ts,
         split: fit_end,
@@ -530,7 +536,41 @@ pub fn run_frequency(
         track_uf: uf_oe,
         track_proposed: prop_oe,
     });
-    Ok((row, traces, samples as f64 * ts))
+    Ok(FrequencyResult { row, traces, actuator_s: samples as f64 * ts })
+}
+
+/// Most frequencies one sweep runs.
+pub const MAX_FREQUENCIES: usize = 10_000;
+
+/// The frequencies `from, from + step, …` up to `to` (inclusive, up to rounding), each
+/// rounded to 1 nHz.
+pub fn frequencies(from: f64, to: f64, step: f64) -> Result<Vec<f64>, SweepError> {
+    let range = SweepError::Range { from, to, step };
+    if !(from.is_finite() && to.is_finite() && step.is_finite()) || from <= 0.0 || step <= 0.0 || to < from {
+        return Err(range);
+    }
+    let n = ((to - from) / step + 1e-9).floor() as usize + 1;
+    if n > MAX_FREQUENCIES {
+        return Err(range);
+    }
+    Ok((0..n).map(|i| ((from + i as f64 * step) * 1e9).round() / 1e9).collect())
+}
+
+/// A finished sweep as `boucwen sweep --json` prints it.
+#[derive(Clone, Debug, Serialize)]
+pub struct SweepSummary<'a> {
+    /// The structure's resonance (Hz), if its poles are complex.
+    pub structure_resonance_hz: Option<f64>,
+    /// One row per frequency.
+    pub rows: &'a [Row],
+    /// The files written.
+    pub files: Vec<String>,
+    /// Wall-clock time, s.
+    pub wall_s: f64,
+    /// Simulated actuator time, s.
+    pub actuator_s: f64,
+    /// Actuator time per wall-clock time.
+    pub speedup: f64,
 }
 
 /// A finished sweep.
@@ -554,6 +594,18 @@ impl SweepResult {
         self.actuator_s / self.wall_s.max(1e-9)
     }
 
+    /// The summary of `--json`, with the files written.
+    pub fn summary(&self, files: &[PathBuf]) -> SweepSummary<'_> {
+        SweepSummary {
+            structure_resonance_hz: self.structure.resonance_hz,
+            rows: &self.rows,
+            files: files.iter().map(|p| p.display().to_string()).collect(),
+            wall_s: self.wall_s,
+            actuator_s: self.actuator_s,
+            speedup: self.speedup(),
+        }
+    }
+
     /// The whole table as CSV.
     pub fn csv(&self) -> String {
         let mut s = String::from(CSV_HEADER);
@@ -569,26 +621,23 @@ impl SweepResult {
 /// Runs the sweep on all cores; `progress` is called after each frequency.
 pub fn run(opts: &SweepOptions, progress: &(dyn Fn() + Sync)) -> Result<SweepResult, SweepError> {
     if opts.freqs.is_empty() {
-        return Err(SweepError::Options("no frequencies to sweep".into()));
+        return Err(SweepError::NoFrequencies);
     }
     if !(opts.seconds.is_finite() && opts.seconds > 0.0) {
-        return Err(SweepError::Options(format!("--seconds must be > 0 (got {})", opts.seconds)));
+        return Err(SweepError::Seconds(opts.seconds));
     }
     opts.scenario.validate()?;
     let ts = opts.scenario.sampling.ts_s;
     let periods = opts.seconds * 0.5 * opts.freqs.iter().cloned().fold(f64::INFINITY, f64::min);
     if periods < 2.0 {
-        return Err(SweepError::Options(format!(
-            "--seconds {} is too short: the held-out half must hold at least 2 periods of the lowest frequency",
-            opts.seconds
-        )));
+        return Err(SweepError::TooShort(opts.seconds));
     }
     if opts.seconds / ts < 1000.0 {
-        return Err(SweepError::Options(format!("--seconds {} gives fewer than 1000 samples", opts.seconds)));
+        return Err(SweepError::TooFewSamples(opts.seconds));
     }
     let t0 = std::time::Instant::now();
     let structure = identify_structure(&opts.scenario, opts.drive_amplitude)?;
-    let results: Vec<Result<(Row, Option<Traces>, f64), SweepError>> = (0..opts.freqs.len())
+    let results: Vec<Result<FrequencyResult, SweepError>> = (0..opts.freqs.len())
         .into_par_iter()
         .map(|i| {
             let keep = opts.trace_freqs.iter().any(|t| (t - opts.freqs[i]).abs() < 1e-9);
@@ -601,10 +650,57 @@ pub fn run(opts: &SweepOptions, progress: &(dyn Fn() + Sync)) -> Result<SweepRes
     let mut traces = vec![];
     let mut actuator_s = STRUCTURE_SECONDS + LOOP_SECONDS;
     for r in results {
-        let (row, tr, secs) = r?;
-        rows.push(row);
-        traces.extend(tr);
-        actuator_s += secs;
+        let r = r?;
+        rows.push(r.row);
+        traces.extend(r.traces);
+        actuator_s += r.actuator_s;
     }
     Ok(SweepResult { structure, rows, traces, wall_s: t0.elapsed().as_secs_f64(), actuator_s })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn frequency_lists() {
+        assert_eq!(frequencies(1.0, 3.0, 1.0).unwrap(), vec![1.0, 2.0, 3.0]);
+        assert_eq!(frequencies(1.0, 2.0, 0.3).unwrap(), vec![1.0, 1.3, 1.6, 1.9]);
+        assert_eq!(frequencies(14.0, 23.0, 9.0).unwrap(), vec![14.0, 23.0]);
+        assert!(frequencies(0.0, 3.0, 1.0).is_err());
+        assert!(frequencies(3.0, 1.0, 1.0).is_err());
+        assert!(frequencies(1.0, 3.0, f64::NAN).is_err());
+        assert!(frequencies(1.0, 1e6, 1.0).is_err());
+    }
+
+    #[test]
+    fn rows_serialize_with_the_csv_names_and_null_for_nan() {
+        let row = Row {
+            freq_hz: 23.0,
+            rms_extended_um: f64::NAN,
+            rms_enhanced_um: 0.2,
+            rmse_uf_um: 3.5,
+            rmse_proposed_um: 2.1,
+            harmonic_order: 3,
+            cancel_order: 3,
+            cancel_order_oe: 3,
+            alpha_um: 20.2,
+            rms_extended_oe_um: 3.6,
+            rms_enhanced_oe_um: 0.14,
+            rmse_uf_oe_um: 3.56,
+            rmse_proposed_oe_um: 0.24,
+            rmse_open_um: 4.7,
+            rmse_pi_um: 14.3,
+            rmse_orc_um: 1.1,
+        };
+        let j = serde_json::to_value(&row).unwrap();
+        let keys: Vec<&str> = j.as_object().unwrap().keys().map(String::as_str).collect();
+        let mut csv: Vec<&str> = CSV_HEADER.split(',').collect();
+        let mut sorted = keys.clone();
+        sorted.sort_unstable();
+        csv.sort_unstable();
+        assert_eq!(sorted, csv);
+        assert!(j["rms_extended_um"].is_null());
+        assert_eq!(j["harmonic_order"], 3);
+    }
 }
