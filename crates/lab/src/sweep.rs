@@ -376,6 +376,87 @@ pub struct FrequencyResult {
     pub actuator_s: f64,
 }
 
+/// The models identified at one frequency and their held-out errors.
+struct Identified {
+    /// The enhanced model's harmonic order (0: none).
+    order: u32,
+    ext_oe: HostModel,
+    enh_oe: HostModel,
+    /// The enhanced output-error fit keeps its loop invertible over the record.
+    enh_oe_invertible: bool,
+    ext_rls: HostModel,
+    enh_rls: HostModel,
+    /// Held-out free-run RMS errors: RLS extended, RLS enhanced, OE extended, OE enhanced.
+    rms: [f64; 4],
+    /// Free runs of the OE models over the whole record.
+    y_ext: Vec<f64>,
+    y_enh: Vec<f64>,
+}
+
+/// Step 1 and 2 of the module docs at one frequency: the fits of both methods on the first
+/// half of the record `(u, y)`, the harmonic order, the held-out errors.
+fn identify_at(
+    opts: &SweepOptions,
+    structure: &Structure,
+    f: f64,
+    u: &[f64],
+    y: &[f64],
+) -> Result<Identified, FitError> {
+    let ts = opts.scenario.sampling.ts_s;
+    let fit_end = u.len() / 2;
+    let oe = OeOptions {
+        structure: Some(structure.model.ext.ar),
+        fix_structure: true,
+        delay: Some(structure.model.delay),
+        shape: Some(structure.shape),
+        ..OeOptions::default()
+    };
+    let ext_fit = fit::fit_oe(u, y, ts, fit_end, &ModelSpec::extended(f), &[], &oe)?;
+    let ext_oe = ext_fit.model.clone();
+    let (order, _share) = choose_order(opts.harmonics, f, ts, u, y, &ext_oe, fit_end)?;
+    let orders: Vec<u32> = if order > 0 { vec![order] } else { vec![] };
+    let enh_fit = if orders.is_empty() {
+        ext_fit
+    } else {
+        fit::fit_oe(u, y, ts, fit_end, &ModelSpec::enhanced(f, &orders), std::slice::from_ref(&ext_oe), &oe)?
+    };
+    let ext_rls = fit::fit_paper_rls(u, y, ts, fit_end, &ModelSpec::extended(f))?;
+    // The paper's RLS fits the branch by equation error; its free run can come out worse than
+    // the extended model's. The branch is kept only if the free run on the fitted half (after
+    // the start-up) improves: a choice made on the fitted data alone.
+    let enh_rls = if orders.is_empty() {
+        ext_rls.clone()
+    } else {
+        let cand = fit::fit_paper_rls(u, y, ts, fit_end, &ModelSpec::enhanced(f, &orders))?;
+        let on_fit = |m: &HostModel| -> Result<f64, FitError> {
+            let sim = m.simulate(&u[..fit_end], ts)?;
+            let skip = (fit_end / 5).min(2000);
+            Ok(analysis::rms_diff(&sim[skip..], &y[skip..fit_end]))
+        };
+        if on_fit(&cand)? < on_fit(&ext_rls)? { cand } else { ext_rls.clone() }
+    };
+    let held_out = |m: &HostModel| -> Result<(f64, Vec<f64>), FitError> {
+        let sim = m.simulate(u, ts)?;
+        let r = analysis::rms_diff(&sim[fit_end..], &y[fit_end..]);
+        Ok((if r.is_finite() { r } else { f64::NAN }, sim))
+    };
+    let (rms_ext_rls, _) = held_out(&ext_rls)?;
+    let (rms_enh_rls, _) = held_out(&enh_rls)?;
+    let (rms_ext_oe, y_ext) = held_out(&ext_oe)?;
+    let (rms_enh_oe, y_enh) = held_out(&enh_fit.model)?;
+    Ok(Identified {
+        order,
+        ext_oe,
+        enh_oe_invertible: enh_fit.invertible,
+        enh_oe: enh_fit.model,
+        ext_rls,
+        enh_rls,
+        rms: [rms_ext_rls, rms_enh_rls, rms_ext_oe, rms_enh_oe],
+        y_ext,
+        y_enh,
+    })
+}
+
 /// One frequency of the sweep.
 pub fn run_frequency(
     opts: &SweepOptions,
@@ -388,62 +469,15 @@ pub fn run_frequency(
     let n = (opts.seconds / ts).round() as usize;
     let fit_end = n / 2;
     let settle = (opts.settle_s() / ts).round() as usize;
-    let core = |e| SweepError::Core(f, e);
-    let fit_err = |e| SweepError::Fit(f, e);
     // Independent noise per frequency and run, reproducible from the scenario's seed.
     let seed = |run: u64| opts.scenario.seed.wrapping_mul(1_000_003).wrapping_add(index as u64 * 16 + run);
     let plant = |run: u64| Bimorph::new(&opts.scenario.clone().with_seed(seed(run)));
 
-    // 1. Identification record.
-    let u = experiment::sine(opts.drive_amplitude, f, ts, n).map_err(core)?;
+    // 1. Identification record, 2. fits.
+    let u = experiment::sine(opts.drive_amplitude, f, ts, n).map_err(|e| SweepError::Core(f, e))?;
     let y = plant(0)?.run(&u)?;
     let mut samples = n;
-
-    // 2. Fits.
-    let oe = OeOptions {
-        structure: Some(structure.model.ext.ar),
-        fix_structure: true,
-        delay: Some(structure.model.delay),
-        shape: Some(structure.shape),
-        ..OeOptions::default()
-    };
-    let ext_fit = fit::fit_oe(&u, &y, ts, fit_end, &ModelSpec::extended(f), &[], &oe).map_err(fit_err)?;
-    let ext_oe = ext_fit.model.clone();
-    let (order, _share) = choose_order(opts.harmonics, f, ts, &u, &y, &ext_oe, fit_end).map_err(fit_err)?;
-    let orders: Vec<u32> = if order > 0 { vec![order] } else { vec![] };
-    let enh_fit = if orders.is_empty() {
-        ext_fit.clone()
-    } else {
-        fit::fit_oe(&u, &y, ts, fit_end, &ModelSpec::enhanced(f, &orders), std::slice::from_ref(&ext_oe), &oe)
-            .map_err(fit_err)?
-    };
-    let enh_oe = enh_fit.model.clone();
-    let ext_rls = fit::fit_paper_rls(&u, &y, ts, fit_end, &ModelSpec::extended(f)).map_err(fit_err)?;
-    // The paper's RLS fits the branch by equation error; its free run can come out worse than
-    // the extended model's. The branch is kept only if the free run on the fitted half (after
-    // the start-up) improves: a choice made on the fitted data alone.
-    let enh_rls = if orders.is_empty() {
-        ext_rls.clone()
-    } else {
-        let cand =
-            fit::fit_paper_rls(&u, &y, ts, fit_end, &ModelSpec::enhanced(f, &orders)).map_err(fit_err)?;
-        let on_fit = |m: &HostModel| -> Result<f64, SweepError> {
-            let sim = m.simulate(&u[..fit_end], ts).map_err(fit_err)?;
-            let skip = (fit_end / 5).min(2000);
-            Ok(analysis::rms_diff(&sim[skip..], &y[skip..fit_end]))
-        };
-        let (c, e) = (on_fit(&cand)?, on_fit(&ext_rls)?);
-        if c < e { cand } else { ext_rls.clone() }
-    };
-    let held_out = |m: &HostModel| -> Result<(f64, Vec<f64>), SweepError> {
-        let sim = m.simulate(&u, ts).map_err(fit_err)?;
-        let r = analysis::rms_diff(&sim[fit_end..], &y[fit_end..]);
-        Ok((if r.is_finite() { r } else { f64::NAN }, sim))
-    };
-    let (rms_ext_rls, _) = held_out(&ext_rls)?;
-    let (rms_enh_rls, _) = held_out(&enh_rls)?;
-    let (rms_ext_oe, y_ext) = held_out(&ext_oe)?;
-    let (rms_enh_oe, y_enh) = held_out(&enh_oe)?;
+    let id = identify_at(opts, structure, f, &u, &y).map_err(|e| SweepError::Fit(f, e))?;
 
     // 3. Compensation: α from eq. (25) on the identification record.
     let alpha = experiment::eq25_amplitude(&u, &y);
@@ -454,27 +488,26 @@ pub fn run_frequency(
         if order == 0 {
             return Ok(vec![]);
         }
-        let response = match opts.response {
-            ResponseSource::Model => {
-                experiment::model_harmonics(model, &[order], f, ts, PhaseRule::Model)[0].response
+        let rule = match opts.response {
+            ResponseSource::Model => PhaseRule::Model,
+            ResponseSource::Table { flip_hz } => PhaseRule::Table { flip_hz },
+            ResponseSource::Probe => {
+                let response = match probed.iter().find(|(o, _)| *o == order) {
+                    Some((_, g)) => *g,
+                    None => {
+                        let m = ((PROBE_SECONDS / ts).round() as usize).min(n);
+                        let eps = PROBE_REL * opts.drive_amplitude;
+                        let g = design::probe_response_on(&mut plant(5)?, &u[..m], &y[..m], f, order, eps)
+                            .map_err(|e| SweepError::Probe(f, e))?;
+                        samples += m;
+                        probed.push((order, g));
+                        g
+                    }
+                };
+                return Ok(vec![HarmonicSpec { order, response }]);
             }
-            ResponseSource::Table { flip_hz } => {
-                experiment::model_harmonics(model, &[order], f, ts, PhaseRule::Table { flip_hz })[0].response
-            }
-            ResponseSource::Probe => match probed.iter().find(|(o, _)| *o == order) {
-                Some((_, g)) => *g,
-                None => {
-                    let m = ((PROBE_SECONDS / ts).round() as usize).min(n);
-                    let eps = PROBE_REL * opts.drive_amplitude;
-                    let g = design::probe_response_on(&mut plant(5)?, &u[..m], &y[..m], f, order, eps)
-                        .map_err(|e| SweepError::Probe(f, e))?;
-                    samples += m;
-                    probed.push((order, g));
-                    g
-                }
-            },
         };
-        Ok(vec![HarmonicSpec { order, response }])
+        Ok(experiment::model_harmonics(model, &[order], f, ts, rule))
     };
     let tracking = |model: &HostModel, h: &[HarmonicSpec<f64>], run: u64| -> Result<Trace, SweepError> {
         experiment::track(&mut plant(run)?, model, h, alpha, f, n, set)
@@ -485,21 +518,22 @@ pub fn run_frequency(
     // harmonic the tracking error under u_f shows (Fig. 13); its u_f comes from the first two
     // equations of the enhanced model (the paper's section 4) when that model carries the
     // same harmonic and is invertible, else from the extended model.
-    let invertible = |m: &HostModel| fit::invertible_for(m, &u);
-    let uf_rls = tracking(&ext_rls, &[], 1)?;
+    let order = id.order;
+    let uf_rls = tracking(&id.ext_rls, &[], 1)?;
     let n_rls = cancel_order(opts.harmonics, f, ts, &uf_rls, settle, alpha);
-    let base_rls = if n_rls == order && invertible(&enh_rls) { &enh_rls } else { &ext_rls };
+    let invertible = n_rls == order && fit::invertible_for(&id.enh_rls, &u);
+    let base_rls = if invertible { &id.enh_rls } else { &id.ext_rls };
     let h_rls = responses(base_rls, n_rls)?;
     let prop_rls = if n_rls == 0 { uf_rls.clone() } else { tracking(base_rls, &h_rls, 2)? };
-    let uf_oe = tracking(&ext_oe, &[], 3)?;
+    let uf_oe = tracking(&id.ext_oe, &[], 3)?;
     let n_oe = cancel_order(opts.harmonics, f, ts, &uf_oe, settle, alpha);
-    let base_oe = if n_oe == order && enh_fit.invertible { &enh_oe } else { &ext_oe };
+    let base_oe = if n_oe == order && id.enh_oe_invertible { &id.enh_oe } else { &id.ext_oe };
     let h_oe = responses(base_oe, n_oe)?;
     let prop_oe = if n_oe == 0 { uf_oe.clone() } else { tracking(base_oe, &h_oe, 4)? };
     samples += 2 * n + usize::from(n_rls > 0) * n + usize::from(n_oe > 0) * n;
     // The peers, tuned from the output-error extended model by the core's rule.
     let peer = |p: Peer, run: u64| -> Result<Trace, SweepError> {
-        experiment::track_peer(&mut plant(run)?, &ext_oe, p, alpha, f, n, set)
+        experiment::track_peer(&mut plant(run)?, &id.ext_oe, p, alpha, f, n, set)
             .map_err(|e| SweepError::Experiment(f, e))
     };
     let open = peer(Peer::OpenLoop, 6)?;
@@ -507,6 +541,7 @@ pub fn run_frequency(
     let orc = peer(Peer::Orc, 8)?;
     samples += 3 * n;
 
+    let [rms_ext_rls, rms_enh_rls, rms_ext_oe, rms_enh_oe] = id.rms;
     let row = Row {
         freq_hz: f,
         rms_extended_um: rms_ext_rls,
@@ -531,8 +566,8 @@ pub fn run_frequency(
         split: fit_end,
         u,
         y,
-        y_extended: y_ext,
-        y_enhanced: y_enh,
+        y_extended: id.y_ext,
+        y_enhanced: id.y_enh,
         track_uf: uf_oe,
         track_proposed: prop_oe,
     });
