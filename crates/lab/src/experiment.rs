@@ -469,4 +469,67 @@ mod tests {
         }
         assert!(rmse[0] > 0.05 && rmse[1] < 0.01, "{rmse:?}");
     }
+
+    /// A plant that passes `u` through and breaks at sample 7.
+    struct Breaks {
+        k: usize,
+    }
+
+    #[derive(Debug)]
+    struct CableCut;
+
+    impl fmt::Display for CableCut {
+        fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+            f.write_str("cable cut")
+        }
+    }
+
+    impl std::error::Error for CableCut {}
+
+    impl Plant<f64> for Breaks {
+        type Error = CableCut;
+        fn step(&mut self, u: f64) -> Result<f64, CableCut> {
+            if self.k == 7 {
+                return Err(CableCut);
+            }
+            self.k += 1;
+            Ok(u)
+        }
+        fn sample_interval_s(&self) -> f64 {
+            1e-3
+        }
+        fn reset(&mut self) -> Result<(), CableCut> {
+            self.k = 0;
+            Ok(())
+        }
+        fn name(&self) -> &str {
+            "test plant"
+        }
+    }
+
+    #[test]
+    fn a_plant_error_ends_the_run_naming_the_sample() {
+        let model = HostModel {
+            ext: ExtendedParams {
+                bw: BoucWenParams { a1: 20.0, a: 6.0, a0: 0.5, gamma: 2.0, beta: 3.0 },
+                ar: [0.5, 0.0],
+            },
+            drive_hz: 10.0,
+            branches: vec![],
+            drift: vec![],
+            delay: 0.0,
+        };
+        let set = CompensationSettings::default();
+        for peer in [Peer::OpenLoop, Peer::Pi, Peer::Orc] {
+            let e = track_peer(&mut Breaks { k: 0 }, &model, peer, 5.0, 10.0, 100, &set).unwrap_err();
+            assert!(matches!(e, ExperimentError::Plant { sample: 7, .. }), "{e:?}");
+            assert_eq!(e.to_string(), "test plant at sample 7: cable cut");
+        }
+        let e = track(&mut Breaks { k: 0 }, &model, &[], 5.0, 10.0, 100, &set).unwrap_err();
+        assert_eq!(e.to_string(), "test plant at sample 7: cable cut");
+        // Before it breaks, the run is the plain loop.
+        let t = track(&mut Breaks { k: 0 }, &model, &[], 5.0, 10.0, 7, &set).unwrap();
+        assert_eq!(t.d.len(), 7);
+        assert_eq!(t.y, t.u);
+    }
 }
