@@ -54,6 +54,7 @@ use boucwen_link::device::{Controller, Reference};
 use boucwen_link::message::{
     ControllerParams, Fault, Message, Mode, RunState, SafeReason, SafetyParams, Status, command_flags,
 };
+use serde::Serialize;
 use std::fmt;
 use std::time::{Duration, Instant};
 
@@ -726,28 +727,56 @@ where
     run(&mut link, plant, params, opts)
 }
 
+/// The figures of a run that `boucwen hil --json` prints as its last line (`cargo xtask hil`
+/// and CI read these keys).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct HilSummary {
+    /// Samples run.
+    pub samples: u32,
+    /// Samples accounted for ([`HilReport::samples_accounted`]).
+    pub samples_accounted: u32,
+    /// Frames rejected by their checks, host and board together.
+    pub corrupted_frames: u64,
+    /// Frames that vanished, both sides.
+    pub lost_frames: u64,
+    /// Tracking RMSE, µm (`null` if not finite).
+    pub rmse_um: Option<f64>,
+    /// From the host's last frame to 0 V after the run, as the board counted it, ms
+    /// (`null` if the board did not get there).
+    pub safe_state_ms: Option<f64>,
+    /// Whether the run was in lockstep.
+    pub lockstep: bool,
+}
+
+/// What is wrong with a run ([`HilReport::verdict`]): every problem found, in order.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Verdict(pub Vec<String>);
+
+impl fmt::Display for Verdict {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(&self.0.join("; "))
+    }
+}
+
+impl std::error::Error for Verdict {}
+
 impl HilReport {
-    /// The summary line of `--json`.
-    pub fn json(&self) -> String {
-        let num = |x: Option<f64>| match x {
-            Some(v) if v.is_finite() => format!("{v}"),
-            _ => "null".into(),
-        };
-        format!(
-            "{{\"samples\": {}, \"samples_accounted\": {}, \"corrupted_frames\": {}, \"lost_frames\": {}, \"rmse_um\": {}, \"safe_state_ms\": {}, \"lockstep\": {}}}",
-            self.samples,
-            self.samples_accounted,
-            self.corrupted_frames,
-            self.lost_frames,
-            num(Some(self.rmse_um)),
-            num(self.safe_state.map(|s| s.board_ms)),
-            self.lockstep
-        )
+    /// The figures of `--json`.
+    pub fn json_summary(&self) -> HilSummary {
+        HilSummary {
+            samples: self.samples,
+            samples_accounted: self.samples_accounted,
+            corrupted_frames: self.corrupted_frames,
+            lost_frames: self.lost_frames,
+            rmse_um: self.rmse_um.is_finite().then_some(self.rmse_um),
+            safe_state_ms: self.safe_state.map(|s| s.board_ms),
+            lockstep: self.lockstep,
+        }
     }
 
     /// `Ok` when every sample is accounted for, the shadow agrees with every command and
     /// the accounting found nothing wrong; otherwise what is wrong.
-    pub fn verdict(&self) -> Result<(), String> {
+    pub fn verdict(&self) -> Result<(), Verdict> {
         let mut bad = self.problems.clone();
         if self.samples_accounted != self.samples {
             bad.push(format!("{} of {} samples accounted for", self.samples_accounted, self.samples));
@@ -758,7 +787,7 @@ impl HilReport {
         if self.shadow_mismatches > 0 {
             bad.push(format!("{} commands differ from the host's shadow controller", self.shadow_mismatches));
         }
-        if bad.is_empty() { Ok(()) } else { Err(bad.join("; ")) }
+        if bad.is_empty() { Ok(()) } else { Err(Verdict(bad)) }
     }
 
     /// A human-readable summary, one fact per line.
@@ -930,7 +959,26 @@ mod tests {
         let ramp = (last_u.abs() / 0.1).ceil() as u32;
         assert!((ramp..=ramp + 1).contains(&s.ramp_steps), "{s:?}");
         assert!(s.board_ms >= 250.0 && s.board_ms <= 250.0 + ramp as f64 + 2.0, "{s:?}");
-        assert!(r.json().contains(&format!("\"safe_state_ms\": {}", s.board_ms)), "{}", r.json());
+        assert!(r.verdict().is_ok());
+        // The JSON line's keys, which `cargo xtask hil` and CI read.
+        let j = serde_json::to_value(r.json_summary()).unwrap();
+        let keys: Vec<&str> = j.as_object().unwrap().keys().map(String::as_str).collect();
+        assert_eq!(keys.len(), 7);
+        for k in [
+            "samples",
+            "samples_accounted",
+            "corrupted_frames",
+            "lost_frames",
+            "rmse_um",
+            "safe_state_ms",
+            "lockstep",
+        ] {
+            assert!(keys.contains(&k), "{k} in {keys:?}");
+        }
+        assert_eq!(j["samples"], 3000);
+        assert_eq!(j["rmse_um"].as_f64(), Some(r.rmse_um));
+        assert_eq!(j["safe_state_ms"].as_f64(), Some(s.board_ms));
+        assert_eq!(j["lockstep"], true);
     }
 
     #[test]
