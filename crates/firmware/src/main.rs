@@ -11,7 +11,7 @@
 //! |---|---|---|
 //! | sample timer interrupt | 3 (highest) | reads the sensor, steps the controller, writes the drive, queues the telemetry frame (`Device::on_tick`); times itself; counts missed ticks; stores the drive for after a reset |
 //! | UART interrupt | 2 | received bytes into [`RX`]; on a chip also the transmitter, one byte per "transmit empty" interrupt from [`TX`] |
-//! | pacing timer interrupt | 2 | QEMU builds: one byte of [`TX`] per byte time at [`BAUD`] (QEMU's UART sends at once; a real one does not) |
+//! | pacing timer interrupt | 2 | `mps2-an386`: one byte of [`TX`] per byte time at [`BAUD`] (QEMU's UART sends at once; a real one does not); the STM32F4's `emulator` build paces from SysTick at the same priority, and a chip's UART paces itself |
 //! | idle | 0 | decodes [`RX`], hands frames to `Device::on_packet` (locking the device: the tick waits at most one frame's handling), feeds the watchdog while ticks come, sleeps |
 //!
 //! RTIC because the design is a few interrupts at fixed priorities sharing one state:
@@ -25,7 +25,7 @@
 //!
 //! | module | what |
 //! |---|---|
-//! | [`board`] | QEMU `mps2-an386` (default): CMSDK UART0 and timers; or, with `stm32f4`, an STM32F405/407 on `stm32f4xx-hal` (USART2, TIM2, TIM3, ADC1, DAC, IWDG), in QEMU's `netduinoplus2` with `emulator` |
+//! | [`board`] | QEMU `mps2-an386` (default): CMSDK UART0 and timers; or, with `stm32f4`, an STM32F405/407 on `stm32f4xx-hal` (USART2, TIM2, ADC1, DAC, IWDG), in QEMU's `netduinoplus2` with `emulator` (TIM5's counter as the clock, SysTick as the timer service) |
 //! | [`ring`] | the byte queues between priorities |
 //! | [`persist`] | the drive and the reason for a reset, kept across it |
 #![no_std]

@@ -54,6 +54,7 @@ use boucwen_link::device::{Controller, Reference};
 use boucwen_link::message::{
     ControllerParams, Fault, Message, Mode, RunState, SafeReason, SafetyParams, Status, command_flags,
 };
+use serde::Serialize;
 use std::fmt;
 use std::time::{Duration, Instant};
 
@@ -144,7 +145,8 @@ pub struct SafeState {
     /// period), ms.
     pub board_ms: f64,
     /// From the host sending its last frame to receiving the board's `Safe`, ms (link
-    /// and, in an emulator, its clock included).
+    /// and, in an emulator, its clock included); NaN when the board went there on its own
+    /// before the host fell silent on purpose (a run whose end the host missed).
     pub host_ms: f64,
     /// Ramp steps seen (telemetry frames flagged as the ramp).
     pub ramp_steps: u32,
@@ -327,68 +329,104 @@ fn diagnostics<P: Port>(
     .ok_or_else(|| HilError::NoAnswer { request: "GetDiagnostics", port: link.port_name() })
 }
 
-/// Falls silent and watches the board take its drive from `from_v` to 0 V: the ramp's
-/// telemetry must fall monotonically to 0 V in steps of at most the slew per period, and
-/// `Safe` must name the lost host and come within the timeout plus the ramp's length (two
-/// ticks of slack). What is wrong goes to `problems`.
-fn safe_state<P: Port>(
-    link: &mut Link<P>,
-    safety: &SafetyParams,
-    from_v: f32,
-    period_us: u32,
-    problems: &mut Vec<String>,
-) -> Result<Option<SafeState>, HilError> {
-    if from_v == 0.0 {
-        return Ok(None);
-    }
-    let silent_since = Instant::now();
-    let period_s = period_us as f64 * 1e-6;
-    let step_v = safety.slew_v_per_s as f64 * period_s;
-    let ramp_ticks = (from_v.abs() as f64 / step_v).ceil();
-    let timeout_ticks = (safety.host_timeout_ms as f64 * 1e-3 / period_s).ceil();
-    let bound_ticks = timeout_ticks + ramp_ticks + 2.0;
-    // Wall-clock patience: an emulator's clock may run slower than the wall's.
-    let deadline = silent_since + Duration::from_secs_f64(bound_ticks * period_s * 20.0 + 2.0);
-    let (mut last, mut steps) = (from_v, 0u32);
-    loop {
-        let Some(r) = link.recv(deadline)? else {
-            problems.push(format!(
-                "no Safe message within {:.1} s of silence",
-                (deadline - silent_since).as_secs_f64()
-            ));
-            return Ok(None);
-        };
-        let Ok(p) = r else { continue };
-        match p.msg {
+/// What the host saw of the board's way to its safe state: the ramp's drives and the
+/// `Safe` message (reason, ticks, period).
+#[derive(Clone, Debug, Default)]
+struct SafeSeen {
+    ramp: Vec<f32>,
+    safe: Option<(u8, u32, u32)>,
+}
+
+impl SafeSeen {
+    /// Takes what belongs to the safe state; `true` for `Safe`, the last of it.
+    fn take(&mut self, m: &Message) -> bool {
+        match *m {
             Message::Telemetry { u, flags, .. } if flags & command_flags::SAFE_RAMP != 0 => {
-                steps += 1;
-                let ok = u.abs() <= last.abs()
-                    && (u == 0.0 || u.signum() == from_v.signum())
-                    && ((last - u).abs() as f64) <= step_v * (1.0 + 1e-5);
-                if !ok {
-                    problems.push(format!("ramp to 0 V: {last} V then {u} V (step at most {step_v} V)"));
-                }
-                last = u;
+                self.ramp.push(u);
+                false
             }
-            Message::Safe { reason, ticks, period_us: p_us } => {
-                let host_ms = silent_since.elapsed().as_secs_f64() * 1e3;
-                let board_ms = ticks as f64 * p_us as f64 * 1e-3;
-                if reason != SafeReason::HostLost as u8 {
-                    problems.push(format!("safe state for reason {reason}, not the lost host"));
-                }
-                if last != 0.0 {
-                    problems.push(format!("Safe came with the drive at {last} V"));
-                }
-                if ticks as f64 > bound_ticks || p_us != period_us {
-                    problems.push(format!(
-                        "safe state after {ticks} ticks of {p_us} µs (at most {bound_ticks} of {period_us} µs expected)"
-                    ));
-                }
-                return Ok(Some(SafeState { from_v, board_ms, host_ms, ramp_steps: steps }));
+            Message::Safe { reason, ticks, period_us } => {
+                self.safe = Some((reason, ticks, period_us));
+                true
             }
-            _ => {}
+            _ => false,
         }
     }
+}
+
+/// Falls silent and watches the board take its drive from `from_v` to 0 V.
+fn watch_safe_state<P: Port>(
+    link: &mut Link<P>,
+    safety: &SafetyParams,
+    period_us: u32,
+    problems: &mut Vec<String>,
+) -> Result<(SafeSeen, f64), HilError> {
+    let silent_since = Instant::now();
+    let period_s = period_us as f64 * 1e-6;
+    let bound_ticks = safe_bound_ticks(safety, period_s, safety.u_max.abs().max(safety.u_min.abs()));
+    // Wall-clock patience: an emulator's clock may run slower than the wall's.
+    let deadline = silent_since + Duration::from_secs_f64(bound_ticks * period_s * 20.0 + 2.0);
+    let mut seen = SafeSeen::default();
+    loop {
+        let Some(r) = link.recv(deadline)? else {
+            let waited = (deadline - silent_since).as_secs_f64();
+            problems.push(format!("no Safe message within {waited:.1} s of silence"));
+            return Ok((seen, f64::NAN));
+        };
+        if let Ok(p) = r {
+            if seen.take(&p.msg) {
+                return Ok((seen, silent_since.elapsed().as_secs_f64() * 1e3));
+            }
+        }
+    }
+}
+
+/// Ticks from the host's last frame to 0 V at most: the timeout, the ramp from `from_v`
+/// at the slew, and two ticks of slack.
+fn safe_bound_ticks(safety: &SafetyParams, period_s: f64, from_v: f32) -> f64 {
+    let step_v = safety.slew_v_per_s as f64 * period_s;
+    let timeout_ticks = (safety.host_timeout_ms as f64 * 1e-3 / period_s).ceil();
+    timeout_ticks + (from_v.abs() as f64 / step_v).ceil() + 2.0
+}
+
+/// Checks the way to 0 V from `from_v`: the ramp falls monotonically to 0 V in steps of at
+/// most the slew per period, and `Safe` names the lost host and comes within
+/// [`safe_bound_ticks`]. What is wrong goes to `problems`.
+fn check_safe_state(
+    seen: &SafeSeen,
+    from_v: f32,
+    host_ms: f64,
+    safety: &SafetyParams,
+    period_us: u32,
+    problems: &mut Vec<String>,
+) -> Option<SafeState> {
+    let (reason, ticks, p_us) = seen.safe?;
+    let period_s = period_us as f64 * 1e-6;
+    let step_v = safety.slew_v_per_s as f64 * period_s;
+    let mut last = from_v;
+    for &u in &seen.ramp {
+        let ok = u.abs() <= last.abs()
+            && (u == 0.0 || u.signum() == from_v.signum())
+            && ((last - u).abs() as f64) <= step_v * (1.0 + 1e-5);
+        if !ok {
+            problems.push(format!("ramp to 0 V: {last} V then {u} V (step at most {step_v} V)"));
+        }
+        last = u;
+    }
+    if reason != SafeReason::HostLost as u8 {
+        problems.push(format!("safe state for reason {reason}, not the lost host"));
+    }
+    if last != 0.0 {
+        problems.push(format!("Safe came with the drive at {last} V"));
+    }
+    let bound = safe_bound_ticks(safety, period_s, from_v);
+    if ticks as f64 > bound || p_us != period_us {
+        problems.push(format!(
+            "safe state after {ticks} ticks of {p_us} µs (at most {bound} of {period_us} µs expected)"
+        ));
+    }
+    let board_ms = ticks as f64 * p_us as f64 * 1e-3;
+    Some(SafeState { from_v, board_ms, host_ms, ramp_steps: seen.ramp.len() as u32 })
 }
 
 /// The host's replica of the board's controller, stepped as the board reports.
@@ -456,8 +494,13 @@ where
         Ok(y)
     };
 
+    // The board's way to 0 V if it gets there while the host still waits for the run's end.
+    let mut early = SafeSeen::default();
     while board_done.is_none() {
-        let Some(r) = link.recv(Instant::now() + opts.link_timeout)? else {
+        // After the last sample the run's end follows at once: wait briefly, then ask (a
+        // long silence would make the board declare the host lost).
+        let wait = if log.len() as u32 >= n { Duration::from_millis(100) } else { opts.link_timeout };
+        let Some(r) = link.recv(Instant::now() + wait)? else {
             break;
         };
         let Ok(packet) = r else { continue };
@@ -532,7 +575,9 @@ where
             }
             Message::Status(s) if s.state != RunState::Running as u8 => board_done = Some(s),
             Message::Fault(_) => board_faults += 1,
-            _ => {}
+            ref m => {
+                early.take(m);
+            }
         }
     }
 
@@ -546,7 +591,17 @@ where
     }
     let diag = diagnostics(link, opts)?;
     let lockstep_waits = diag.lockstep_waits.wrapping_sub(waits0);
-    let safe_state = safe_state(link, &opts.safety, diag.drive_v, params.sample_period_us, &mut problems)?;
+    let period_us = params.sample_period_us;
+    let safe_state = if diag.drive_v != 0.0 {
+        let (seen, host_ms) = watch_safe_state(link, &opts.safety, period_us, &mut problems)?;
+        check_safe_state(&seen, diag.drive_v, host_ms, &opts.safety, period_us, &mut problems)
+    } else {
+        // At 0 V already: the last command was 0 V, or the board reached it while the host
+        // waited for the run's end (checked from the ramp's first step: the host may have
+        // missed the last command).
+        let from = early.ramp.first().copied().unwrap_or(last_u);
+        check_safe_state(&early, from, f64::NAN, &opts.safety, period_us, &mut problems)
+    };
     while (log.len() as u32) < n {
         apply(&mut log, last_u, InputSource::Held)?;
     }
@@ -672,28 +727,56 @@ where
     run(&mut link, plant, params, opts)
 }
 
+/// The figures of a run that `boucwen hil --json` prints as its last line (`cargo xtask hil`
+/// and CI read these keys).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct HilSummary {
+    /// Samples run.
+    pub samples: u32,
+    /// Samples accounted for ([`HilReport::samples_accounted`]).
+    pub samples_accounted: u32,
+    /// Frames rejected by their checks, host and board together.
+    pub corrupted_frames: u64,
+    /// Frames that vanished, both sides.
+    pub lost_frames: u64,
+    /// Tracking RMSE, µm (`null` if not finite).
+    pub rmse_um: Option<f64>,
+    /// From the host's last frame to 0 V after the run, as the board counted it, ms
+    /// (`null` if the board did not get there).
+    pub safe_state_ms: Option<f64>,
+    /// Whether the run was in lockstep.
+    pub lockstep: bool,
+}
+
+/// What is wrong with a run ([`HilReport::verdict`]): every problem found, in order.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Verdict(pub Vec<String>);
+
+impl fmt::Display for Verdict {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(&self.0.join("; "))
+    }
+}
+
+impl std::error::Error for Verdict {}
+
 impl HilReport {
-    /// The summary line of `--json`.
-    pub fn json(&self) -> String {
-        let num = |x: Option<f64>| match x {
-            Some(v) if v.is_finite() => format!("{v}"),
-            _ => "null".into(),
-        };
-        format!(
-            "{{\"samples\": {}, \"samples_accounted\": {}, \"corrupted_frames\": {}, \"lost_frames\": {}, \"rmse_um\": {}, \"safe_state_ms\": {}, \"lockstep\": {}}}",
-            self.samples,
-            self.samples_accounted,
-            self.corrupted_frames,
-            self.lost_frames,
-            num(Some(self.rmse_um)),
-            num(self.safe_state.map(|s| s.board_ms)),
-            self.lockstep
-        )
+    /// The figures of `--json`.
+    pub fn json_summary(&self) -> HilSummary {
+        HilSummary {
+            samples: self.samples,
+            samples_accounted: self.samples_accounted,
+            corrupted_frames: self.corrupted_frames,
+            lost_frames: self.lost_frames,
+            rmse_um: self.rmse_um.is_finite().then_some(self.rmse_um),
+            safe_state_ms: self.safe_state.map(|s| s.board_ms),
+            lockstep: self.lockstep,
+        }
     }
 
     /// `Ok` when every sample is accounted for, the shadow agrees with every command and
     /// the accounting found nothing wrong; otherwise what is wrong.
-    pub fn verdict(&self) -> Result<(), String> {
+    pub fn verdict(&self) -> Result<(), Verdict> {
         let mut bad = self.problems.clone();
         if self.samples_accounted != self.samples {
             bad.push(format!("{} of {} samples accounted for", self.samples_accounted, self.samples));
@@ -704,7 +787,7 @@ impl HilReport {
         if self.shadow_mismatches > 0 {
             bad.push(format!("{} commands differ from the host's shadow controller", self.shadow_mismatches));
         }
-        if bad.is_empty() { Ok(()) } else { Err(bad.join("; ")) }
+        if bad.is_empty() { Ok(()) } else { Err(Verdict(bad)) }
     }
 
     /// A human-readable summary, one fact per line.
@@ -759,8 +842,15 @@ impl HilReport {
             },
             match self.safe_state {
                 Some(s) => format!(
-                    "host silent, drive {:.3} V to 0 V in {} ramp steps; {:.0} ms from the host's last frame to 0 V (board's count; {:.0} ms on the host's clock to the Safe message)",
-                    s.from_v, s.ramp_steps, s.board_ms, s.host_ms
+                    "host silent, drive {:.3} V to 0 V in {} ramp steps; {:.0} ms from the host's last frame to 0 V (board's count; {} on the host's clock to the Safe message)",
+                    s.from_v,
+                    s.ramp_steps,
+                    s.board_ms,
+                    if s.host_ms.is_nan() {
+                        "—, reached before the host fell silent".into()
+                    } else {
+                        format!("{:.0} ms", s.host_ms)
+                    }
                 ),
                 None => "not reached (the drive was at 0 V, or see the problems)".into(),
             },
@@ -869,7 +959,26 @@ mod tests {
         let ramp = (last_u.abs() / 0.1).ceil() as u32;
         assert!((ramp..=ramp + 1).contains(&s.ramp_steps), "{s:?}");
         assert!(s.board_ms >= 250.0 && s.board_ms <= 250.0 + ramp as f64 + 2.0, "{s:?}");
-        assert!(r.json().contains(&format!("\"safe_state_ms\": {}", s.board_ms)), "{}", r.json());
+        assert!(r.verdict().is_ok());
+        // The JSON line's keys, which `cargo xtask hil` and CI read.
+        let j = serde_json::to_value(r.json_summary()).unwrap();
+        let keys: Vec<&str> = j.as_object().unwrap().keys().map(String::as_str).collect();
+        assert_eq!(keys.len(), 7);
+        for k in [
+            "samples",
+            "samples_accounted",
+            "corrupted_frames",
+            "lost_frames",
+            "rmse_um",
+            "safe_state_ms",
+            "lockstep",
+        ] {
+            assert!(keys.contains(&k), "{k} in {keys:?}");
+        }
+        assert_eq!(j["samples"], 3000);
+        assert_eq!(j["rmse_um"].as_f64(), Some(r.rmse_um));
+        assert_eq!(j["safe_state_ms"].as_f64(), Some(s.board_ms));
+        assert_eq!(j["lockstep"], true);
     }
 
     #[test]
