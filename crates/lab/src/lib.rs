@@ -8,6 +8,7 @@
 //! | [`record`] | measured records on disk (CSV), [`record::Replay`] as a plant |
 //! | [`analysis`] | spectra, harmonics, whole periods |
 //! | [`fit`] | identification: the paper's RLS and output error |
+//! | [`board_design`] | the board's compensator from measured records, and the design file |
 //! | [`design`] | an identified model (or a plant) to the board's parameters; the cancellation rule and the probe of the response at `n·f`, shared by `boucwen hil` and the sweep |
 //! | [`experiment`] | one closed-loop runner for any core `Controller` on any core `Plant`: the compensator (with preview) and the peers |
 //! | [`simulate`] | the virtual bimorph on a sine or a drive file, to a record |
@@ -17,6 +18,7 @@
 //! | `hidden` (feature `fixtures`) | records of the virtual bimorph with a hidden effect, for tests and benches |
 
 pub mod analysis;
+pub mod board_design;
 pub mod design;
 pub mod diagnose;
 pub mod experiment;
