@@ -1,10 +1,11 @@
-//! `boucwen`: sweep, simulate, identify, diagnose and drive a board over a serial link.
+//! `boucwen`: sweep, simulate, identify, diagnose, and drive a board over a serial link (hil, board).
 //!
 //! Every failure prints one line naming what went wrong and where, and exits non-zero.
 
 use clap::{Parser, Subcommand};
 use std::process::ExitCode;
 
+mod cmd_board;
 mod cmd_diagnose;
 mod cmd_hil;
 mod cmd_identify;
@@ -39,6 +40,9 @@ enum Command {
     /// Hardware in the loop: drive the board on a serial device with the virtual bimorph as
     /// its actuator; the board runs the compensator.
     Hil(cmd_hil::HilArgs),
+    /// The board on a bench: excite and record, design from records, load and verify, run
+    /// with the telemetry streamed into a record.
+    Board(cmd_board::BoardArgs),
 }
 
 fn main() -> ExitCode {
@@ -49,6 +53,7 @@ fn main() -> ExitCode {
         Command::Identify(a) => cmd_identify::run(a).map_err(anyhow::Error::msg),
         Command::Diagnose(a) => cmd_diagnose::run(a).map_err(anyhow::Error::msg),
         Command::Hil(a) => cmd_hil::run(a),
+        Command::Board(a) => cmd_board::run(a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
