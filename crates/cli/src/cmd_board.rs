@@ -153,6 +153,9 @@ struct DesignArgs {
     /// Raised-cosine fade-in of the reference, s.
     #[arg(long, default_value_t = 0.5)]
     fade: f64,
+    /// Length of the predicted run on the model, s (the RMSE after its first fifth).
+    #[arg(long, default_value_t = board_design::PREDICT_SECONDS)]
+    predict_seconds: f64,
     /// End with one JSON line.
     #[arg(long)]
     json: bool,
@@ -335,7 +338,7 @@ fn actuator_name(a: &ActuatorArgs) -> &'static str {
 
 fn samples_of(seconds: f64, ts: f64) -> anyhow::Result<u32> {
     let n = seconds / ts;
-    if !(seconds.is_finite() && n >= 2.0 && n < 1e9) {
+    if !(seconds.is_finite() && (2.0..1e9).contains(&n)) {
         bail!("--seconds {seconds}: at least two samples ({} s) and at most 1e9", 2.0 * ts);
     }
     Ok(n.round() as u32)
@@ -524,6 +527,7 @@ fn design(a: DesignArgs) -> anyhow::Result<()> {
             host_timeout_ms: a.host_timeout_ms,
         },
         fade_s: a.fade,
+        predict_seconds: a.predict_seconds,
     };
     let records: Vec<Record> = a.records.iter().map(Record::read).collect::<Result<_, _>>()?;
     let d = board_design::design_from_records(&records, &opts)?;
@@ -556,7 +560,8 @@ fn summary(d: &DesignFile) -> String {
     let m = &d.model;
     let _ = writeln!(
         s,
-        "extended model: fit {:.2} % held out ({:.4} µm RMS), A1 = {:.4} µm/V{}, invertible over {:.3}..{:.3} V (slope ≥ {:.2}·A1)",
+        "inverted: {}: fit {:.2} % held out ({:.4} µm RMS), A1 = {:.4} µm/V{}, invertible over {:.3}..{:.3} V (slope ≥ {:.2}·A1)",
+        m.inverted,
         m.fit_pct,
         m.held_out_rms_um,
         m.a1,

@@ -66,7 +66,7 @@ pub const FORMAT: &str = "boucwen-board-design";
 pub const VERSION: u32 = 1;
 /// Share of the input's power the fundamental must hold for a sine record.
 pub const SINE_SHARE: f64 = 0.9;
-/// Length of the prediction run, s.
+/// Length of the prediction run by default, s.
 pub const PREDICT_SECONDS: f64 = 5.0;
 /// Highest odd harmonic looked for.
 pub const MAX_ORDER: u32 = 9;
@@ -103,6 +103,8 @@ pub struct DesignOptions {
     pub safety: SafetyParams,
     /// Fade-in of the reference, s.
     pub fade_s: f64,
+    /// Length of the prediction run, s (at least 1000 samples).
+    pub predict_seconds: f64,
 }
 
 impl Default for DesignOptions {
@@ -113,6 +115,7 @@ impl Default for DesignOptions {
             harmonics: HarmonicChoice::Auto,
             safety: SafetyParams::DEFAULT,
             fade_s: experiment::FADE_IN_S,
+            predict_seconds: PREDICT_SECONDS,
         }
     }
 }
@@ -183,9 +186,12 @@ pub struct SourceRecord {
     pub fit_pct: Option<f64>,
 }
 
-/// The identified extended model, `f64`.
+/// The identified model whose extended part the board inverts, `f64`.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct ModelSection {
+    /// Which: `extended`, or `the extended part of enhanced(n)` (the enhanced model's
+    /// structure and loop, when it carries every cancelled harmonic).
+    pub inverted: String,
     /// AR part `[a1, a2]` of the structure (eq. 9's form).
     pub ar: [f64; 2],
     /// `A1`, µm/V.
@@ -200,9 +206,10 @@ pub struct ModelSection {
     pub beta: f64,
     /// Resonance of the structure, Hz (complex poles only).
     pub resonance_hz: Option<f64>,
-    /// Fit percentage on the held-out half of the fitted record.
+    /// Fit percentage of the model (with its branches) on the held-out half of the fitted
+    /// record.
     pub fit_pct: f64,
-    /// RMS of the free-run error there, µm.
+    /// RMS of its free-run error there, µm.
     pub held_out_rms_um: f64,
     /// The drive range `[lo, hi]` (V) the tracking needs, over which the loop was checked
     /// invertible.
@@ -671,15 +678,15 @@ pub fn design_from_records(records: &[Record], opts: &DesignOptions) -> Result<D
     found.sort_by(|a, b| b.1.total_cmp(&a.1));
     found.truncate(MAX_HARMONICS);
     let orders: Vec<u32> = found.iter().map(|&(n, _)| n).collect();
-    let (prediction, pred_pct) = if orders.is_empty() {
-        (ext.clone(), ext_pct)
+    let (prediction, pred_pct, pred_invertible) = if orders.is_empty() {
+        (ext.clone(), ext_pct, true)
     } else {
         let fit =
             fit::fit_oe(u, y, ts, split, &ModelSpec::enhanced(f, &orders), std::slice::from_ref(&ext), &oe)
                 .map_err(fit_err)?;
         let (pct, _) = held_out(&fit.model)?;
         // A branch that does not improve the held-out fit is not a better account.
-        if pct > ext_pct { (fit.model, pct) } else { (ext.clone(), ext_pct) }
+        if pct > ext_pct { (fit.model, pct, fit.invertible) } else { (ext.clone(), ext_pct, true) }
     };
     // 5. α.
     let (alpha, alpha_source) = match opts.amplitude_um {
@@ -697,9 +704,9 @@ pub fn design_from_records(records: &[Record], opts: &DesignOptions) -> Result<D
     let saturation = Saturation { u_min, u_max };
     let settings = experiment::CompensationSettings::default();
     let reference = ReferenceSpec { freq_hz: f, amplitude_um: alpha, fade_s: opts.fade_s };
-    let params = |h: &[HarmonicSpec<f64>]| {
+    let params = |m: &HostModel, h: &[HarmonicSpec<f64>]| {
         controller_params(
-            &ext.ext,
+            &m.ext,
             h,
             RlsConfig::with_forgetting(settings.lambda, settings.p0),
             saturation,
@@ -709,41 +716,18 @@ pub fn design_from_records(records: &[Record], opts: &DesignOptions) -> Result<D
         )
         .map_err(BoardDesignError::Params)
     };
-    let n = (PREDICT_SECONDS / ts).round() as usize;
-    let uf_params = params(&[])?;
+    let n = (opts.predict_seconds / ts).round() as usize;
+    if !(opts.predict_seconds.is_finite() && (1000..=10_000_000).contains(&n)) {
+        return Err(BoardDesignError::Option(format!(
+            "prediction of {} s: 1000 samples ({} s) to 1e7",
+            opts.predict_seconds,
+            1000.0 * ts
+        )));
+    }
+    let uf_params = params(&ext, &[])?;
     let settle = settle_samples(n as u32, uf_params.fade_samples) as usize;
-    // 6. u_f alone on the prediction model: the range it needs and what stands out.
+    // 6. u_f alone (from the extended model) on the prediction model: what stands out.
     let uf = track(&uf_params, &prediction, n, ts).map_err(BoardDesignError::Params)?;
-    let fade = uf_params.fade_samples as usize;
-    let (lo_u, hi_u) = uf.u[fade.min(n)..].iter().fold((0.0f64, 0.0f64), |(a, b), &v| (a.min(v), b.max(v)));
-    // At a bound of the range (the inverse clamps u_f there itself, unflagged) or flagged.
-    let saturated = (fade.min(n)..n)
-        .filter(|&k| uf.saturated[k] || uf.u[k] >= u_max as f32 as f64 || uf.u[k] <= u_min as f32 as f64)
-        .count();
-    if saturated > 0 {
-        return Err(BoardDesignError::DriveLimits(format!(
-            "tracking {alpha:.3} µm at {f} Hz needs a drive from {lo_u:.3} to {hi_u:.3} V on the model, beyond the drive limits [{u_min}, {u_max}] V ({saturated} of {} samples saturated): ask for a smaller --amplitude or wider --drive-limits",
-            n - fade.min(n)
-        )));
-    }
-    // 7. Invertible over that range?
-    let bw = &ext.ext.bw;
-    let mut hs = boucwen_core::model::HysteresisState::default();
-    let (mut h_lo, mut h_hi) = (0.0f64, 0.0f64);
-    for &uk in &uf.u {
-        let h = hs.step(bw, uk);
-        h_lo = h_lo.min(h);
-        h_hi = h_hi.max(h);
-    }
-    let slope = fit::operating_slope(bw, h_lo, h_hi).unwrap_or(f64::NAN);
-    let slope_rel = slope / bw.a1;
-    if !(bw.a1 > 0.0 && slope_rel >= fit::MIN_SLOPE) {
-        return Err(BoardDesignError::NotInvertible(format!(
-            "over the drive {lo_u:.3} to {hi_u:.3} V that tracking {alpha:.3} µm needs, the slope of A1·u − h falls to {slope_rel:.3}·A1 (at least {} needed; A1 = {:.4} µm/V): ask for a smaller --amplitude",
-            fit::MIN_SLOPE,
-            bw.a1
-        )));
-    }
     let err: Vec<f64> = uf.y.iter().zip(&uf.d).map(|(a, b)| a - b).collect();
     let tail = &err[settle..];
     let m = analysis::whole_periods(tail.len(), f, ts);
@@ -766,8 +750,54 @@ pub fn design_from_records(records: &[Record], opts: &DesignOptions) -> Result<D
             o.clone()
         }
     };
-    let hspecs = experiment::model_harmonics(&ext, &cancel, f, ts, PhaseRule::Model);
-    let final_params = params(&hspecs)?;
+    // The model the board inverts: as in the sweep, the enhanced model's extended part when
+    // it carries every cancelled harmonic (its structure is not bent to imitate them), else
+    // the extended model.
+    let carries =
+        !cancel.is_empty() && cancel.iter().all(|n| prediction.branches.iter().any(|b| b.order == *n));
+    let base_is_ext = !(carries && pred_invertible);
+    let base = if base_is_ext { &ext } else { &prediction };
+    let uf_rmse = rmse_after(&uf, settle);
+    let base_uf = if base_is_ext {
+        uf
+    } else {
+        track(&params(base, &[])?, &prediction, n, ts).map_err(BoardDesignError::Params)?
+    };
+    // 7. The drive the tracking needs: within the limits, and where the loop is invertible?
+    let fade = uf_params.fade_samples as usize;
+    let (lo_u, hi_u) =
+        base_uf.u[fade.min(n)..].iter().fold((0.0f64, 0.0f64), |(a, b), &v| (a.min(v), b.max(v)));
+    // At a bound of the range (the inverse clamps u_f there itself, unflagged) or flagged.
+    let saturated = (fade.min(n)..n)
+        .filter(|&k| {
+            base_uf.saturated[k] || base_uf.u[k] >= u_max as f32 as f64 || base_uf.u[k] <= u_min as f32 as f64
+        })
+        .count();
+    if saturated > 0 {
+        return Err(BoardDesignError::DriveLimits(format!(
+            "tracking {alpha:.3} µm at {f} Hz needs a drive from {lo_u:.3} to {hi_u:.3} V on the model, beyond the drive limits [{u_min}, {u_max}] V ({saturated} of {} samples saturated): ask for a smaller --amplitude or wider --drive-limits",
+            n - fade.min(n)
+        )));
+    }
+    let bw = &base.ext.bw;
+    let mut hs = boucwen_core::model::HysteresisState::default();
+    let (mut h_lo, mut h_hi) = (0.0f64, 0.0f64);
+    for &uk in &base_uf.u {
+        let h = hs.step(bw, uk);
+        h_lo = h_lo.min(h);
+        h_hi = h_hi.max(h);
+    }
+    let slope = fit::operating_slope(bw, h_lo, h_hi).unwrap_or(f64::NAN);
+    let slope_rel = slope / bw.a1;
+    if !(bw.a1 > 0.0 && slope_rel >= fit::MIN_SLOPE) {
+        return Err(BoardDesignError::NotInvertible(format!(
+            "over the drive {lo_u:.3} to {hi_u:.3} V that tracking {alpha:.3} µm needs, the slope of A1·u − h falls to {slope_rel:.3}·A1 (at least {} needed; A1 = {:.4} µm/V): ask for a smaller --amplitude",
+            fit::MIN_SLOPE,
+            bw.a1
+        )));
+    }
+    let hspecs = experiment::model_harmonics(base, &cancel, f, ts, PhaseRule::Model);
+    let final_params = params(base, &hspecs)?;
     // 8. The prediction.
     let designed = track(&final_params, &prediction, n, ts).map_err(BoardDesignError::Params)?;
     let safety = opts.safety;
@@ -791,6 +821,7 @@ pub fn design_from_records(records: &[Record], opts: &DesignOptions) -> Result<D
         slew_v_per_s: safety.slew_v_per_s,
         host_timeout_ms: safety.host_timeout_ms,
     };
+    let (base_pct, base_rms) = if base_is_ext { (ext_pct, ext_rms) } else { (pred_pct, held_out(base)?.1) };
     let mut sources = Vec::new();
     for (i, r) in records.iter().enumerate() {
         let drive = match drives[i] {
@@ -798,7 +829,7 @@ pub fn design_from_records(records: &[Record], opts: &DesignOptions) -> Result<D
             None => "broadband".into(),
         };
         let (role, pct) = if i == fit_i {
-            ("fit", Some(ext_pct))
+            ("fit", Some(base_pct))
         } else if Some(i) == structure_i {
             ("structure", None)
         } else if at_f(i) {
@@ -817,7 +848,7 @@ pub fn design_from_records(records: &[Record], opts: &DesignOptions) -> Result<D
             fit_pct: pct,
         });
     }
-    let bw = &ext.ext.bw;
+    let bw = &base.ext.bw;
     let cancelled_amp = |order: u32| analysis::tone(&tail[..m], order as f64 * f, ts).amp;
     Ok(DesignFile {
         format: FORMAT.into(),
@@ -825,15 +856,20 @@ pub fn design_from_records(records: &[Record], opts: &DesignOptions) -> Result<D
         created_by: format!("boucwen {}", env!("CARGO_PKG_VERSION")),
         sources,
         model: ModelSection {
-            ar: ext.ext.ar,
+            inverted: if base_is_ext {
+                "extended".into()
+            } else {
+                format!("the extended part of {}", base.name())
+            },
+            ar: base.ext.ar,
             a1: bw.a1,
             a: bw.a,
             a0: bw.a0,
             gamma: bw.gamma,
             beta: bw.beta,
-            resonance_hz: crate::diagnose::resonance_hz(ext.ext.ar, ts),
-            fit_pct: ext_pct,
-            held_out_rms_um: ext_rms,
+            resonance_hz: crate::diagnose::resonance_hz(base.ext.ar, ts),
+            fit_pct: base_pct,
+            held_out_rms_um: base_rms,
             checked_u_v: [lo_u, hi_u],
             min_slope_rel: slope_rel,
         },
@@ -873,7 +909,7 @@ pub fn design_from_records(records: &[Record], opts: &DesignOptions) -> Result<D
             fit_pct: pred_pct,
             seconds: n as f64 * ts,
             settle_s: settle as f64 * ts,
-            uf_rmse_um: rmse_after(&uf, settle),
+            uf_rmse_um: uf_rmse,
             design_rmse_um: rmse_after(&designed, settle),
         },
         board,
