@@ -391,11 +391,14 @@ fn safe_bound_ticks(safety: &SafetyParams, period_s: f64, from_v: f32) -> f64 {
 
 /// Checks the way to 0 V from `from_v`: the ramp falls monotonically to 0 V in steps of at
 /// most the slew per period, and `Safe` names the lost host and comes within
-/// [`safe_bound_ticks`]. What is wrong goes to `problems`.
+/// [`safe_bound_ticks`] plus the `skipped` periods the board counted as missed meanwhile
+/// (its count of time includes them; in an emulator whose clock follows a loaded host's,
+/// it jumps). What is wrong goes to `problems`.
 fn check_safe_state(
     seen: &SafeSeen,
     from_v: f32,
     host_ms: f64,
+    skipped: u32,
     safety: &SafetyParams,
     period_us: u32,
     problems: &mut Vec<String>,
@@ -419,10 +422,10 @@ fn check_safe_state(
     if last != 0.0 {
         problems.push(format!("Safe came with the drive at {last} V"));
     }
-    let bound = safe_bound_ticks(safety, period_s, from_v);
+    let bound = safe_bound_ticks(safety, period_s, from_v) + skipped as f64;
     if ticks as f64 > bound || p_us != period_us {
         problems.push(format!(
-            "safe state after {ticks} ticks of {p_us} µs (at most {bound} of {period_us} µs expected)"
+            "safe state after {ticks} ticks of {p_us} µs (at most {bound} of {period_us} µs expected, {skipped} of them missed)"
         ));
     }
     let board_ms = ticks as f64 * p_us as f64 * 1e-3;
@@ -594,13 +597,15 @@ where
     let period_us = params.sample_period_us;
     let safe_state = if diag.drive_v != 0.0 {
         let (seen, host_ms) = watch_safe_state(link, &opts.safety, period_us, &mut problems)?;
-        check_safe_state(&seen, diag.drive_v, host_ms, &opts.safety, period_us, &mut problems)
+        let skipped = diagnostics(link, opts)?.missed_ticks.wrapping_sub(diag.missed_ticks);
+        check_safe_state(&seen, diag.drive_v, host_ms, skipped, &opts.safety, period_us, &mut problems)
     } else {
         // At 0 V already: the last command was 0 V, or the board reached it while the host
         // waited for the run's end (checked from the ramp's first step: the host may have
-        // missed the last command).
+        // missed the last command; the periods skipped are the run's).
         let from = early.ramp.first().copied().unwrap_or(last_u);
-        check_safe_state(&early, from, f64::NAN, &opts.safety, period_us, &mut problems)
+        let skipped = diag.missed_ticks;
+        check_safe_state(&early, from, f64::NAN, skipped, &opts.safety, period_us, &mut problems)
     };
     while (log.len() as u32) < n {
         apply(&mut log, last_u, InputSource::Held)?;
