@@ -33,7 +33,7 @@ pub struct Options {
 }
 
 /// Builds the `boucwen` binary with the cargo that runs xtask; returns its path.
-fn build_cli() -> Result<PathBuf, String> {
+pub(crate) fn build_cli() -> Result<PathBuf, String> {
     let cargo = std::env::var_os("CARGO").unwrap_or_else(|| "cargo".into());
     eprintln!("building the boucwen command");
     let status = Command::new(&cargo)

@@ -11,11 +11,16 @@
 //! cargo xtask panic [--json]            a panic during a run, the ramp to 0 V after the reset
 //!     (each of qemu, hil, timing, panic takes --board mps2|stm32f4: QEMU's mps2-an386 or
 //!      netduinoplus2, the STM32F4 build with its `emulator` feature)
+//! cargo xtask e2e [--json]              excite -> design -> load -> run with `boucwen board`
+//!                                       against the firmware in QEMU (the on-chip actuator and
+//!                                       the virtual bimorph over the link), and a host killed
+//!                                       mid-run
 //! cargo xtask flash [--build-only]      an STM32F4 board: build, budget, probe-rs
 //! ```
 //! Every task checks the tools it needs first and names the Debian package of each missing
 //! one; all failures are listed before the task exits non-zero.
 
+mod e2e;
 mod elf;
 mod flash;
 mod hil;
@@ -101,6 +106,22 @@ enum Task {
         #[arg(long)]
         json: bool,
     },
+    /// From a measured record to a running board, and back, in QEMU: `boucwen board`
+    /// excite, design, load and run, on the on-chip actuator and on the virtual bimorph over
+    /// the link, and a host killed mid-run.
+    E2e {
+        /// The board (its QEMU machine).
+        #[arg(long, value_enum, default_value = "mps2")]
+        board: tools::Board,
+        /// The actuator(s).
+        #[arg(long, value_enum, default_value = "both")]
+        actuator: e2e::Which,
+        /// End each actuator with one JSON line: actuator, samples_expected, samples_logged,
+        /// design_rmse_um, run_rmse_um, inprocess_rmse_um (the crash test's line before the
+        /// on-chip one).
+        #[arg(long)]
+        json: bool,
+    },
     /// Build the firmware for an STM32F4 board (feature `stm32f4`), check the budget and
     /// flash it with probe-rs.
     Flash {
@@ -149,6 +170,7 @@ fn main() -> ExitCode {
         }
         Task::Timing { board, frames, json } => finish(timing::run(board, frames, json)),
         Task::Panic { board, json } => finish(panic::run(board, json)),
+        Task::E2e { board, actuator, json } => finish(e2e::run(&e2e::Options { board, actuator, json })),
         Task::Flash { chip, build_only } => finish(flash::run(&flash::Options { chip, build_only })),
     }
 }
