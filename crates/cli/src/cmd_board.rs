@@ -474,6 +474,7 @@ fn excite(a: ExciteArgs) -> anyhow::Result<()> {
                 "samples_logged": report.samples_logged,
                 "samples_incomplete": incomplete,
                 "limited": report.limited,
+                "board_tx_dropped": report.tx_dropped,
                 "end": report.end.to_string(),
             })
         );
@@ -483,6 +484,11 @@ fn excite(a: ExciteArgs) -> anyhow::Result<()> {
 
 /// The run's verdict: non-zero unless every sample arrived complete.
 fn finish(report: &RunReport, out: &Path) -> anyhow::Result<()> {
+    if let Some(n @ 1..) = report.tx_dropped {
+        eprintln!(
+            "boucwen: the board dropped {n} frames: its transmit queue was full (the line or the host too slow)"
+        );
+    }
     if report.end != RunEnd::Complete {
         bail!("{}; {} holds the {} samples received", report.end, out.display(), report.samples_logged);
     }
@@ -719,6 +725,7 @@ fn run_board(a: RunArgs) -> anyhow::Result<()> {
                 "saturated": report.saturated,
                 "limited": report.limited,
                 "safe_state_ms": report.safe.map(|s| s.board_ms),
+                "board_tx_dropped": report.tx_dropped,
                 "end": report.end.to_string(),
             })
         );

@@ -49,7 +49,7 @@ pub const BAUD: u32 = 460_800;
 /// Bytes received, waiting for `idle`.
 pub static RX: ByteRing<512> = ByteRing::new();
 /// Frames to send, waiting for the transmitter.
-pub static TX: ByteRing<1024> = ByteRing::new();
+pub static TX: ByteRing<4096> = ByteRing::new();
 /// A tick period requested by `idle` (0: none), applied by the tick interrupt.
 static PERIOD_REQUEST_US: AtomicU32 = AtomicU32::new(0);
 /// Ticks handled (for the watchdog's feeding in `idle`).

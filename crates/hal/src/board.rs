@@ -446,6 +446,10 @@ pub struct RunReport {
     pub params: Option<ControllerParams>,
     /// The ramp to 0 V after the run, if watched and seen.
     pub safe: Option<SafeAfter>,
+    /// Frames the board could not queue for sending during the run (its transmit queue was
+    /// full: the line, or the host, was slower than the telemetry); `None` if it did not
+    /// say.
+    pub tx_dropped: Option<u32>,
 }
 
 /// Runs the loaded compensator on `actuator` for `samples` samples, tracking a sine of
@@ -575,6 +579,7 @@ fn stream<P: Port>(
     let host = matches!(actuator, Actuator::Host(_));
     // On the board's actuator sample k's measurement comes with the telemetry of k + 1.
     let ticks = if host { samples } else { samples + 1 };
+    let dropped_before = diagnostics(link, opts)?.map(|d| d.tx_dropped);
     configure(link, &Message::Start { mode: actuator.mode(), samples: ticks }, "Start", opts)?;
     let mut st =
         Streamer { sink, reference, next: 0, samples, logged: 0, incomplete: 0, limited: 0, saturated: 0 };
@@ -688,6 +693,10 @@ fn stream<P: Port>(
             _ => None,
         })?
     };
+    let tx_dropped = match (dropped_before, &board) {
+        (Some(before), Some(_)) => diagnostics(link, opts)?.map(|d| d.tx_dropped.wrapping_sub(before)),
+        _ => None,
+    };
     let safe = if complete && !opts.watch_safe.is_zero() { watch_safe(link, opts.watch_safe)? } else { None };
     Ok(RunReport {
         samples_expected: samples,
@@ -699,7 +708,19 @@ fn stream<P: Port>(
         saturated: st.saturated,
         params: None,
         safe,
+        tx_dropped,
     })
+}
+
+/// The board's diagnostics, if it answers.
+fn diagnostics<P: Port>(
+    link: &mut Link<P>,
+    opts: &StreamOptions,
+) -> Result<Option<boucwen_link::message::Diagnostics>, BoardError> {
+    Ok(link.request(&Message::GetDiagnostics, 3, opts.reply, |_, m| match m {
+        Message::Diagnostics(d) => Some(*d),
+        _ => None,
+    })?)
 }
 
 /// Stays silent and waits up to `patience` for the board's `Safe`.
