@@ -411,11 +411,13 @@ pub fn run(opts: &Options) -> Vec<String> {
             Ok((v, crash)) => {
                 let get = |k: &str| v.get(k).and_then(serde_json::Value::as_f64).unwrap_or(f64::NAN);
                 let (expected, logged) = (get("samples_expected"), get("samples_logged"));
-                if !(expected == logged && expected == (RUN_SECONDS * 1000) as f64) {
+                let all = expected == logged && expected == (RUN_SECONDS * 1000) as f64;
+                if !all {
                     failures.push(format!("{w:?}: {logged} of {expected} samples logged"));
                 }
                 let (run, inproc) = (get("run_rmse_um"), get("inprocess_rmse_um"));
-                if !((run - inproc).abs() <= TOLERANCE * inproc) {
+                let within = (run - inproc).abs() <= TOLERANCE * inproc;
+                if !within || run.is_nan() || inproc.is_nan() {
                     failures.push(format!(
                         "{w:?}: run RMSE {run:.4} µm, the same design in-process {inproc:.4} µm: more than {:.0} % apart",
                         TOLERANCE * 100.0
