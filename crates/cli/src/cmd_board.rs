@@ -118,6 +118,10 @@ struct ExciteArgs {
     /// The board's drive limits for the excitation, V (LO:HI); the board's own if omitted.
     #[arg(long, value_name = "LO:HI")]
     drive_limits: Option<String>,
+    /// The board declares the host lost after this long without a frame, ms; the board's own
+    /// if omitted (with --drive-limits, the default 250 ms).
+    #[arg(long)]
+    host_timeout_ms: Option<u32>,
     /// End with one JSON line.
     #[arg(long)]
     json: bool,
@@ -434,12 +438,16 @@ fn excite(a: ExciteArgs) -> anyhow::Result<()> {
     let (period_us, ts) = (period.round() as u32, period.round() * 1e-6);
     let n = samples_of(a.seconds, ts)?;
     let e = excitation(&a, ts, period_us, n)?;
-    let safety = match &a.drive_limits {
-        Some(t) => {
-            let (u_min, u_max) = drive_limits(t, "--drive-limits")?;
-            Some(SafetyParams { u_min, u_max, ..SafetyParams::DEFAULT })
+    let safety = match (&a.drive_limits, a.host_timeout_ms) {
+        (None, None) => None,
+        (limits, timeout) => {
+            let mut s = SafetyParams::DEFAULT;
+            if let Some(t) = limits {
+                (s.u_min, s.u_max) = drive_limits(t, "--drive-limits")?;
+            }
+            s.host_timeout_ms = timeout.unwrap_or(s.host_timeout_ms);
+            Some(s)
         }
-        None => None,
     };
     let what = match (&a.sine, &a.multisine) {
         (Some(s), _) => format!("sine {s}"),
