@@ -8,7 +8,7 @@
 //! stands out in the fitted part of the output (3 if none does).
 
 use crate::cmd_diagnose::read_for_fit;
-use boucwen_lab::fit::{self, HostModel, ModelSpec, OeOptions};
+use boucwen_lab::fit::{self, DataUsed, Fit, HostModel, ModelSpec, OeOptions};
 use boucwen_lab::{analysis, diagnose, sweep};
 use std::path::PathBuf;
 
@@ -92,19 +92,29 @@ pub fn run(a: IdentifyArgs) -> Result<(), String> {
         require_invertible: a.invertible,
         ..diagnose::fit_options(split, ts)
     };
-    let model = match a.method {
+    let (model, fit) = match a.method {
         Method::Oe => {
-            fit::fit_oe(u, y, ts, split, &spec, &[], &opt).map_err(|e| format!("{name}: {e}"))?.model
+            let fit = fit::fit_oe(u, y, ts, split, &spec, &[], &opt).map_err(|e| format!("{name}: {e}"))?;
+            (fit.model.clone(), Some(fit))
         }
-        Method::Rls => fit::fit_paper_rls(u, y, ts, split, &spec).map_err(|e| format!("{name}: {e}"))?,
+        Method::Rls => {
+            (fit::fit_paper_rls(u, y, ts, split, &spec).map_err(|e| format!("{name}: {e}"))?, None)
+        }
     };
     let sim = model.simulate(u, ts).map_err(|e| format!("{name}: {e}"))?;
     let fit_rms = analysis::rms_diff(&y[opt.skip..split], &sim[opt.skip..split]);
     let held_out_rms = analysis::rms_diff(&y[split..], &sim[split..]);
     if a.json {
-        println!("{}", json(&model, &a, drive_hz, split, r.len() - split, fit_rms, held_out_rms));
+        let mut j = json(&model, &a, drive_hz, split, r.len() - split, fit_rms, held_out_rms);
+        if let Some(f) = &fit {
+            j["fit"] = fit_json(f);
+        }
+        println!("{j}");
     } else {
         print!("{}", text(&model, &name, &a, split, r.len(), ts, fit_rms, held_out_rms));
+        if let Some(f) = &fit {
+            println!("{}", fit_text(f));
+        }
     }
     Ok(())
 }
@@ -126,7 +136,45 @@ fn method_name(m: Method) -> &'static str {
     }
 }
 
-fn json(m: &HostModel, a: &IdentifyArgs, f: f64, fit: usize, held: usize, fit_rms: f64, rms: f64) -> String {
+/// How the output-error fit ended and what it was computed on.
+fn fit_json(f: &Fit) -> serde_json::Value {
+    let data = match f.data {
+        DataUsed::Samples { from, to } => serde_json::json!({"kind": "samples", "from": from, "to": to}),
+        DataUsed::Periods { from, to, periods, scored } => serde_json::json!({
+            "kind": "average_period", "from": from, "to": to, "periods": periods, "scored_samples": scored,
+        }),
+    };
+    serde_json::json!({
+        "stop": f.stop.as_str(),
+        "iterations": f.iterations,
+        "evaluations": f.evaluations,
+        "criterion_rms_um": f.rms_fit,
+        "data": data,
+    })
+}
+
+fn fit_text(f: &Fit) -> String {
+    let data = match f.data {
+        DataUsed::Samples { from, to } => format!("samples {from}..{to}"),
+        DataUsed::Periods { from, to, periods, .. } => {
+            format!("the average of {periods} periods of samples {from}..{to}")
+        }
+    };
+    format!(
+        "fit on {data}: stopped after {} iterations ({}), {} evaluations",
+        f.iterations, f.stop, f.evaluations
+    )
+}
+
+fn json(
+    m: &HostModel,
+    a: &IdentifyArgs,
+    f: f64,
+    fit: usize,
+    held: usize,
+    fit_rms: f64,
+    rms: f64,
+) -> serde_json::Value {
     let bw = &m.ext.bw;
     let branches: Vec<serde_json::Value> = m
         .branches
@@ -150,7 +198,6 @@ fn json(m: &HostModel, a: &IdentifyArgs, f: f64, fit: usize, held: usize, fit_rm
             "branches": branches,
         },
     })
-    .to_string()
 }
 
 #[allow(clippy::too_many_arguments)]

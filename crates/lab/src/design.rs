@@ -14,7 +14,7 @@
 //!   and the odd harmonic that stands out in its tracking error cancelled with the model's
 //!   response at `n·f`.
 
-use crate::fit::{self, FitError, HostModel, ModelSpec, OeOptions};
+use crate::fit::{self, Averaging, FitError, HostModel, ModelSpec, OeOptions, Samples};
 use crate::{analysis, experiment, sweep};
 use boucwen_core::compensator::{HarmonicSpec, PhaseRule, Saturation};
 use boucwen_core::controllers::{OrcConfig, PiConfig};
@@ -227,7 +227,13 @@ where
     plant.reset().map_err(plant_err)?;
     let mut y = vec![0.0; n];
     plant.run_into(&u, &mut y).map_err(plant_err)?;
-    let opt = OeOptions { require_invertible: true, ..OeOptions::default() };
+    // The first 4 s of the fitted half, sample by sample (the design record starts from rest).
+    let opt = OeOptions {
+        samples: Samples::First(4000),
+        averaging: Averaging::Off,
+        require_invertible: true,
+        ..OeOptions::default()
+    };
     let model =
         fit::fit_oe(&u, &y, ts, n / 2, &ModelSpec::extended(f), &[], &opt).map_err(DesignError::Fit)?.model;
     let alpha_um = experiment::eq25_amplitude(&u, &y);

@@ -7,7 +7,8 @@
 //!    [`Thresholds::min_gain`], the baseline carries it ("extended+offset"): a sensor's zero
 //!    is arbitrary, and the model's loop starts from `h = 0` wherever the actuator was. An
 //!    offset is not a finding; the model's name shows it. The fit criterion skips the start-up (a fifth of the half, at most
-//!    [`MAX_SKIP_S`]) and covers at most [`MAX_WINDOW_S`].
+//!    [`MAX_SKIP_S`]) and, under a periodic drive, fits the average of the half's remaining
+//!    periods ([`crate::fit::Averaging::Periods`]).
 //! 2. **What it gets wrong.** The held-out residual `r = y − ŷ` is split ([`decompose`]) into
 //!    the part periodic with the drive (harmonics `k·f`, measured over whole periods), a
 //!    slow trend (a cubic in time, its mean included, fitted to what the harmonics leave),
@@ -53,7 +54,7 @@
 //! gain the 50 % the batch asks for (see the README for the shares).
 
 use crate::analysis::{self, Tone};
-use crate::fit::{self, FitError, HostModel, ModelSpec, OeOptions};
+use crate::fit::{self, FitData, FitError, HostModel, ModelSpec, OeOptions};
 use rayon::prelude::*;
 use std::f64::consts::TAU;
 
@@ -520,29 +521,21 @@ pub const TERM_STARTS: usize = 5;
 /// Highest harmonic order tried as a term.
 pub const MAX_TERM_ORDER: u32 = 9;
 
-/// The fit settings of the diagnosis: the baseline is the best of three Levenberg–Marquardt
-/// starts; the loop need not be invertible (the model explains a record, it is not used to
-/// compensate).
+/// The fit settings of the diagnosis: the loop need not be invertible (the model explains a
+/// record, it is not used to compensate).
 ///
 /// The criterion covers the whole first half but its first fifth (at most
 /// [`MAX_SKIP_S`]): the record starts from rest (or from wherever the actuator was), and the
 /// start-up transient of a lightly damped resonance is not what the diagnosis is about.
+/// Under a periodic drive the fit averages the periods of that part first
+/// ([`crate::fit::Averaging::Periods`]), so its cost does not grow with the record.
 pub fn fit_options(split: usize, ts: f64) -> OeOptions {
     let skip = (split / 5).min((MAX_SKIP_S / ts) as usize).max(OeOptions::default().skip);
-    OeOptions {
-        max_iter: 15,
-        require_invertible: false,
-        max_samples: split.min(skip + (MAX_WINDOW_S / ts) as usize),
-        skip,
-        ..OeOptions::default()
-    }
+    OeOptions { require_invertible: false, skip, ..OeOptions::default() }
 }
 
 /// Longest start-up left out of the fit criterion (s).
 pub const MAX_SKIP_S: f64 = 1.0;
-/// Longest fit criterion window (s): enough periods of any drive the diagnosis accepts
-/// (at least 12 at 5 Hz), short enough to keep a diagnosis fast.
-pub const MAX_WINDOW_S: f64 = 2.5;
 
 /// Diagnoses a record: `u` (V), `y` (µm), sample interval `ts` (s).
 pub fn diagnose(u: &[f64], y: &[f64], ts: f64, th: &Thresholds) -> Result<Diagnosis, DiagnoseError> {
@@ -583,7 +576,12 @@ fn diagnose_from(
     let opt = OeOptions { lm_starts: TERM_STARTS, ..fit_options(split, ts) };
     // The baseline carries an output offset: a sensor's zero is arbitrary.
     let spec = ModelSpec { drift_degree: Some(0), ..ModelSpec::extended(drive_hz) };
-    let baseline = fit::fit_oe(u, y, ts, split, &spec, starts, &opt)?.model;
+    // The fitted half's average periods, computed once for all fits (with a trend for the
+    // drift term's).
+    let data = FitData::new(u, y, ts, split);
+    data.prepare(&spec, &opt);
+    data.prepare(&ModelSpec { drift_degree: Some(1), ..spec.clone() }, &opt);
+    let baseline = fit::fit_oe_on(&data, &spec, starts, &opt)?.model;
     let baseline_sim = baseline.simulate(u, ts)?;
     let held_out =
         |sim: &[f64]| -> Vec<f64> { y[split..].iter().zip(&sim[split..]).map(|(a, b)| a - b).collect() };
@@ -616,12 +614,7 @@ fn diagnose_from(
             .enumerate()
             .filter_map(|(i, c)| {
                 let spec = with_term(&model, c, ts)?;
-                let mut o = OeOptions { lm_starts: TERM_STARTS, ..fit_options(split, ts) };
-                if c.kind == Kind::Drift {
-                    // A trend extrapolates from the longest base: the whole fitted half.
-                    o.max_samples = split;
-                }
-                let m = fit::fit_oe(u, y, ts, split, &spec, std::slice::from_ref(&model), &o).ok()?.model;
+                let m = fit::fit_oe_on(&data, &spec, std::slice::from_ref(&model), &opt).ok()?.model;
                 let rms = fit::free_run_rms(&m, u, y, ts, split).ok()?;
                 let term = term_rms(&m, c, u, ts, split).ok()?;
                 (rms.is_finite() && term.is_finite()).then_some((i, m, rms, term))
@@ -643,7 +636,7 @@ fn diagnose_from(
         };
         if round == 0 && depth < MAX_BASELINE_REFITS {
             let stripped = without(&m, &remaining[i]);
-            let refit = fit::fit_oe(u, y, ts, split, &spec, &[stripped], &opt).map(|f| f.model);
+            let refit = fit::fit_oe_on(&data, &spec, &[stripped], &opt).map(|f| f.model);
             if let Ok(b) = refit {
                 if fit::free_run_rms(&b, u, y, ts, split)
                     .is_ok_and(|r| r < baseline_rms_um * (1.0 - BASELINE_REFIT_GAIN))
