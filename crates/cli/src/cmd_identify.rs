@@ -94,8 +94,9 @@ pub fn run(a: IdentifyArgs) -> Result<(), String> {
     };
     let (model, fit) = match a.method {
         Method::Oe => {
+            let t0 = std::time::Instant::now();
             let fit = fit::fit_oe(u, y, ts, split, &spec, &[], &opt).map_err(|e| format!("{name}: {e}"))?;
-            (fit.model.clone(), Some(fit))
+            (fit.model.clone(), Some((fit, t0.elapsed().as_secs_f64())))
         }
         Method::Rls => {
             (fit::fit_paper_rls(u, y, ts, split, &spec).map_err(|e| format!("{name}: {e}"))?, None)
@@ -106,13 +107,13 @@ pub fn run(a: IdentifyArgs) -> Result<(), String> {
     let held_out_rms = analysis::rms_diff(&y[split..], &sim[split..]);
     if a.json {
         let mut j = json(&model, &a, drive_hz, split, r.len() - split, fit_rms, held_out_rms);
-        if let Some(f) = &fit {
-            j["fit"] = fit_json(f);
+        if let Some((f, seconds)) = &fit {
+            j["fit"] = fit_json(f, *seconds);
         }
         println!("{j}");
     } else {
         print!("{}", text(&model, &name, &a, split, r.len(), ts, fit_rms, held_out_rms));
-        if let Some(f) = &fit {
+        if let Some((f, _)) = &fit {
             println!("{}", fit_text(f));
         }
     }
@@ -136,8 +137,8 @@ fn method_name(m: Method) -> &'static str {
     }
 }
 
-/// How the output-error fit ended and what it was computed on.
-fn fit_json(f: &Fit) -> serde_json::Value {
+/// How the output-error fit ended, what it was computed on and how long it took (s).
+fn fit_json(f: &Fit, seconds: f64) -> serde_json::Value {
     let data = match f.data {
         DataUsed::Samples { from, to } => serde_json::json!({"kind": "samples", "from": from, "to": to}),
         DataUsed::Periods { from, to, periods, scored } => serde_json::json!({
@@ -150,6 +151,7 @@ fn fit_json(f: &Fit) -> serde_json::Value {
         "evaluations": f.evaluations,
         "criterion_rms_um": f.rms_fit,
         "data": data,
+        "seconds": seconds,
     })
 }
 
