@@ -519,6 +519,55 @@ mod tests {
         assert!(r < 1e-2, "held-out {r} fit {} model {:?}", fit.rms_fit, fit.model);
     }
 
+    /// Deterministic noise, uniform in ±`amp`.
+    fn noise(n: usize, amp: f64) -> Vec<f64> {
+        let mut s = 7u64;
+        (0..n)
+            .map(|_| {
+                s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+                ((s >> 11) as f64 / (1u64 << 53) as f64 - 0.5) * 2.0 * amp
+            })
+            .collect()
+    }
+
+    #[test]
+    fn under_a_periodic_drive_the_average_period_is_fitted_and_the_fit_stops_by_a_criterion() {
+        let mut t = truth();
+        t.branches.clear();
+        t.drift = vec![0.2];
+        let u = drive(17.3, 20_000);
+        let e = noise(u.len(), 0.05);
+        let y: Vec<f64> = t.simulate(&u, 1e-3).unwrap().iter().zip(&e).map(|(a, b)| a + b).collect();
+        let spec = ModelSpec { drive_hz: 17.3, harmonics: vec![], drift_degree: Some(0) };
+        let opt = OeOptions { skip: 1000, require_invertible: false, lm_starts: 5, ..OeOptions::default() };
+        let fit = fit_oe(&u, &y, 1e-3, 10_000, &spec, &[], &opt).unwrap();
+        assert!(matches!(fit.data, DataUsed::Periods { periods, .. } if periods > 150.0), "{:?}", fit.data);
+        assert!(matches!(fit.stop, Stop::CostDecrease | Stop::StepSize | Stop::Gradient), "{:?}", fit.stop);
+        // Held out, the model is as good as the noise allows (uniform ±0.05: RMS 0.029).
+        let held_out = free_run_rms(&fit.model, &u, &y, 1e-3, 10_000).unwrap();
+        assert!(held_out < 0.0295, "held-out {held_out}");
+        // Levenberg–Marquardt started again from the result finds nothing more.
+        let again =
+            OeOptions { structure: StructureSearch::From(fit.model.ext.ar), lm_starts: 1, ..opt.clone() };
+        let refit = fit_oe(&u, &y, 1e-3, 10_000, &spec, std::slice::from_ref(&fit.model), &again).unwrap();
+        assert!(refit.rms_fit >= 0.995 * fit.rms_fit, "{} vs {}", refit.rms_fit, fit.rms_fit);
+    }
+
+    #[test]
+    fn a_drive_that_is_not_periodic_is_fitted_sample_by_sample() {
+        let mut t = truth();
+        t.branches.clear();
+        // A chirp from 5 to 40 Hz.
+        let u: Vec<f64> = (0..8000)
+            .map(|k| (std::f64::consts::PI * (5.0 + 35.0 * k as f64 / 8000.0) * k as f64 * 1e-3).sin())
+            .collect();
+        let y = t.simulate(&u, 1e-3).unwrap();
+        let fit = fit_oe(&u, &y, 1e-3, 6000, &ModelSpec::extended(20.0), &[], &OeOptions::default()).unwrap();
+        assert_eq!(fit.data, DataUsed::Samples { from: 200, to: 6000 });
+        let held_out = free_run_rms(&fit.model, &u, &y, 1e-3, 6000).unwrap();
+        assert!(held_out < 1e-3 * analysis::rms(&y), "held-out {held_out}");
+    }
+
     #[test]
     fn bad_specs_are_rejected() {
         let u = drive(23.0, 5000);
