@@ -121,7 +121,8 @@ impl Template {
         // Poly columns against themselves and the data.
         let mut pp = nalgebra::DMatrix::<f64>::zeros(npoly, npoly);
         let mut py = nalgebra::DVector::<f64>::zeros(npoly);
-        let (mut uu, mut um) = (0.0, 0.0);
+        let mut pu = nalgebra::DVector::<f64>::zeros(npoly);
+        let mut uu = 0.0;
         for n in from..to {
             let tau = n as f64 / t_scale;
             let mut p = vec![1.0; npoly];
@@ -130,29 +131,27 @@ impl Template {
             }
             for i in 0..npoly {
                 py[i] += p[i] * y[n];
+                pu[i] += p[i] * u[n];
                 for j in 0..npoly {
                     pp[(i, j)] += p[i] * p[j];
                 }
             }
             uu += u[n] * u[n];
-            um += u[n];
-        }
-        // Is the drive periodic? What its mean and harmonics leave (orthogonal over whole periods).
-        let u_var = uu - um * um / len as f64;
-        let u_harm: f64 = sums.iter().map(|a| 2.0 * (a[2] * a[2] + a[3] * a[3]) / len as f64).sum();
-        if !(u_var > 0.0) || (u_var - u_harm).max(0.0) > MAX_DRIVE_APERIODIC.powi(2) * uu {
-            return None;
         }
         // Normal equations: [poly, sin_1, cos_1, …].
         let m = npoly + 2 * kmax;
         let mut g = nalgebra::DMatrix::<f64>::zeros(m, m);
         let mut rhs = nalgebra::DVector::<f64>::zeros(m);
+        let mut rhs_u = nalgebra::DVector::<f64>::zeros(m);
         g.view_mut((0, 0), (npoly, npoly)).copy_from(&pp);
         rhs.rows_mut(0, npoly).copy_from(&py);
+        rhs_u.rows_mut(0, npoly).copy_from(&pu);
         for (a, acc) in sums.iter().enumerate() {
             let ia = npoly + 2 * a;
             rhs[ia] = acc[0];
             rhs[ia + 1] = acc[1];
+            rhs_u[ia] = acc[2];
+            rhs_u[ia + 1] = acc[3];
             for j in 0..npoly {
                 g[(j, ia)] = acc[4 + 2 * j];
                 g[(ia, j)] = acc[4 + 2 * j];
@@ -182,7 +181,13 @@ impl Template {
         for i in 0..m {
             g[(i, i)] += 1e-13 * scale;
         }
-        let coef = g.cholesky()?.solve(&rhs);
+        let chol = g.cholesky()?;
+        // Is the drive periodic? What the harmonics and the trend leave of it.
+        let left = uu - chol.solve(&rhs_u).dot(&rhs_u);
+        if !(uu > 0.0) || left > MAX_DRIVE_APERIODIC.powi(2) * uu {
+            return None;
+        }
+        let coef = chol.solve(&rhs);
         let trend = (0..npoly).map(|j| coef[j] / (t_scale * ts).powi(j as i32)).collect();
         let harmonics = (0..kmax).map(|a| (coef[npoly + 2 * a], coef[npoly + 2 * a + 1])).collect();
         Some(Self { cycles, harmonics, trend, periods, from, to })
@@ -241,5 +246,9 @@ mod tests {
         // A drive that is not periodic at f is refused.
         let chirp: Vec<f64> = (0..n).map(|k| (th(k) * (1.0 + 1e-4 * k as f64)).sin()).collect();
         assert!(Template::new(&chirp, &y, 1000, n, f, ts, 0).is_none());
+        // Periods that are not whole numbers of samples, and a frequency slightly off.
+        for (to, f_est) in [(4990, f), (n, f * (1.0 + 1e-9))] {
+            assert!(Template::new(&u, &y, 1000, to, f_est, ts, 0).is_some(), "{to} {f_est}");
+        }
     }
 }
