@@ -19,6 +19,8 @@ use boucwen_core::Plant;
 use boucwen_link::frame::{SeqGap, SeqTracker};
 use boucwen_link::message::{Mode, PlantParams, kind};
 use boucwen_link::{self as wire, Decoder, Message, Packet, WireError};
+use rand_core::{RngCore, SeedableRng};
+use rand_xoshiro::Xoshiro256PlusPlus;
 use std::collections::VecDeque;
 use std::fmt;
 use std::io::{self, Read, Write};
@@ -172,23 +174,18 @@ impl Port for MemoryPort {
     }
 }
 
-/// SplitMix64 then xorshift: the fault injector's seeded generator.
+/// The fault injector's seeded generator: the project's one generator, xoshiro256++.
 #[derive(Clone, Debug)]
-struct Rng(u64);
+struct Rng(Xoshiro256PlusPlus);
 
 impl Rng {
     fn new(seed: u64) -> Self {
-        let mut z = seed.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        Self((z ^ (z >> 31)) | 1)
+        Self(Xoshiro256PlusPlus::seed_from_u64(seed))
     }
     fn next(&mut self) -> u64 {
-        self.0 ^= self.0 >> 12;
-        self.0 ^= self.0 << 25;
-        self.0 ^= self.0 >> 27;
-        self.0.wrapping_mul(0x2545_F491_4F6C_DD1D)
+        self.0.next_u64()
     }
+    /// Uniform in `[0, 1)`.
     fn unit(&mut self) -> f64 {
         (self.next() >> 11) as f64 / (1u64 << 53) as f64
     }
