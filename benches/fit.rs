@@ -31,7 +31,9 @@ fn fits(c: &mut Criterion) {
     let opt = OeOptions { lm_starts: diagnose::TERM_STARTS, ..diagnose::fit_options(split, ts) };
     let mut g = c.benchmark_group("fit/oe");
     g.sample_size(20).measurement_time(Duration::from_secs(10));
-    for (id, spec) in [("extended/20k", ModelSpec::extended(f)), ("enhanced3/20k", ModelSpec::enhanced(f, &[3]))] {
+    for (id, spec) in
+        [("extended/20k", ModelSpec::extended(f)), ("enhanced3/20k", ModelSpec::enhanced(f, &[3]))]
+    {
         let run = || fit::fit_oe(u, y, ts, split, &spec, &[], &opt).expect("fit");
         let first = run();
         let held = fit::free_run_rms(&first.model, u, y, ts, split).expect("simulate");
