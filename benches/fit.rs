@@ -12,7 +12,7 @@
 //! Before the timing, one run of each prints what it fitted or found.
 
 use boucwen_lab::diagnose::{self, Thresholds};
-use boucwen_lab::fit::{self, ModelSpec, OeOptions};
+use boucwen_lab::fit::{self, Averaging, ModelSpec, OeOptions};
 use boucwen_lab::hidden::{Case, Effect};
 use boucwen_lab::record::Record;
 use boucwen_lab::{analysis, experiment};
@@ -28,7 +28,11 @@ fn fits(c: &mut Criterion) {
     let (u, y, ts) = (&rec.u, &rec.y, rec.ts);
     let split = u.len() / 2;
     let f = analysis::estimate_drive(u, ts).expect("drive");
-    let opt = OeOptions { lm_starts: diagnose::TERM_STARTS, ..diagnose::fit_options(split, ts) };
+    let opt = OeOptions {
+        lm_starts: diagnose::TERM_STARTS,
+        averaging: Averaging::Periods,
+        ..diagnose::fit_options(split, ts)
+    };
     let mut g = c.benchmark_group("fit/oe");
     g.sample_size(20).measurement_time(Duration::from_secs(10));
     for (id, spec) in

@@ -8,7 +8,7 @@
 //! stands out in the fitted part of the output (3 if none does).
 
 use crate::cmd_diagnose::read_for_fit;
-use boucwen_lab::fit::{self, DataUsed, Fit, HostModel, ModelSpec, OeOptions};
+use boucwen_lab::fit::{self, Averaging, DataUsed, Fit, HostModel, ModelSpec, OeOptions};
 use boucwen_lab::{analysis, diagnose, sweep};
 use std::path::PathBuf;
 
@@ -87,9 +87,11 @@ pub fn run(a: IdentifyArgs) -> Result<(), String> {
         }
     };
     let spec = ModelSpec { drive_hz: drive_hz.max(1e-3), harmonics, drift_degree: None };
+    // The output is averaged over periods only in steady state: the model has no drift term.
     let opt = OeOptions {
         lm_starts: diagnose::TERM_STARTS,
         require_invertible: a.invertible,
+        averaging: Averaging::Periods,
         ..diagnose::fit_options(split, ts)
     };
     let (model, fit) = match a.method {

@@ -8,7 +8,7 @@
 //!    is arbitrary, and the model's loop starts from `h = 0` wherever the actuator was. An
 //!    offset is not a finding; the model's name shows it. The fit criterion skips the start-up (a fifth of the half, at most
 //!    [`MAX_SKIP_S`]) and, under a periodic drive, fits the average of the half's remaining
-//!    periods ([`crate::fit::Averaging::Periods`]).
+//!    periods once a trend is separated ([`crate::fit::Averaging::PeriodsAndTrend`]).
 //! 2. **What it gets wrong.** The held-out residual `r = y − ŷ` is split ([`decompose`]) into
 //!    the part periodic with the drive (harmonics `k·f`, measured over whole periods), a
 //!    slow trend (a cubic in time, its mean included, fitted to what the harmonics leave),
@@ -54,7 +54,7 @@
 //! gain the 50 % the batch asks for (see the README for the shares).
 
 use crate::analysis::{self, Tone};
-use crate::fit::{self, FitData, FitError, HostModel, ModelSpec, OeOptions};
+use crate::fit::{self, Averaging, FitData, FitError, HostModel, ModelSpec, OeOptions};
 use rayon::prelude::*;
 use std::f64::consts::TAU;
 
@@ -424,9 +424,16 @@ pub fn decompose(r: &[f64], f: f64, ts: f64) -> Residual {
     // Remove the harmonics, then fit a cubic trend to what is left.
     let mut rest: Vec<f64> = r.to_vec();
     for h in &harmonics {
+        // amp·sin(wk + phase) by a rotating phasor, re-anchored every 1024 samples.
         let w = TAU * h.freq_hz * ts;
+        let (dw_s, dw_c) = w.sin_cos();
+        let (mut s, mut c) = (0.0f64, 1.0f64);
         for (k, v) in rest.iter_mut().enumerate() {
-            *v -= h.amp * (w * k as f64 + h.phase).sin();
+            if k % 1024 == 0 {
+                (s, c) = (w * k as f64 + h.phase).sin_cos();
+            }
+            *v -= h.amp * s;
+            (s, c) = (s * dw_c + c * dw_s, c * dw_c - s * dw_s);
         }
     }
     let (trend, slope) = poly_fit(&rest, ts, 3);
@@ -527,11 +534,17 @@ pub const MAX_TERM_ORDER: u32 = 9;
 /// The criterion covers the whole first half but its first fifth (at most
 /// [`MAX_SKIP_S`]): the record starts from rest (or from wherever the actuator was), and the
 /// start-up transient of a lightly damped resonance is not what the diagnosis is about.
-/// Under a periodic drive the fit averages the periods of that part first
-/// ([`crate::fit::Averaging::Periods`]), so its cost does not grow with the record.
+/// Under a periodic drive the fit separates a trend and averages the periods of that part
+/// first ([`Averaging::PeriodsAndTrend`]), so its cost does not grow with the record; the
+/// trend is the drift term's to explain.
 pub fn fit_options(split: usize, ts: f64) -> OeOptions {
     let skip = (split / 5).min((MAX_SKIP_S / ts) as usize).max(OeOptions::default().skip);
-    OeOptions { require_invertible: false, skip, ..OeOptions::default() }
+    OeOptions {
+        require_invertible: false,
+        skip,
+        averaging: Averaging::PeriodsAndTrend,
+        ..OeOptions::default()
+    }
 }
 
 /// Longest start-up left out of the fit criterion (s).

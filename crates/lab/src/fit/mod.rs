@@ -29,8 +29,9 @@
 //! Unstable AR parts are rejected.
 //!
 //! ## The data
-//! Under a periodic drive ([`Averaging::Periods`], the default) the fit does not score the
-//! record sample by sample: the output's periods after the start-up are averaged first
+//! Under a periodic drive in steady state ([`Averaging::Periods`], the default) the fit does
+//! not score the record sample by sample: the output's periods after the start-up are
+//! averaged first
 //! (least squares on the drive's harmonics and a trend of the spec's drift degree over every
 //! whole period of the fitted part, so the noise drops by the square root of the number of
 //! periods), and the model is scored on that average period. The model is simulated from
@@ -40,7 +41,10 @@
 //! [`MIN_WINDOW_SAMPLES`]) are compared with the average period. The cost is then flat in
 //! the record's length once the record is long enough to average, and a drift's slope comes
 //! from the whole fitted part. Otherwise (a drive that is not periodic, too few periods) the
-//! fit scores every sample of `[skip, fit_end)`.
+//! fit scores every sample of `[skip, fit_end)`, and so it does when the output drifts by
+//! more than its noise and the model has no drift term to follow it
+//! ([`Averaging::Periods`]); a diagnosis separates the trend instead
+//! ([`Averaging::PeriodsAndTrend`]) and models it by a term of its own.
 
 mod error;
 mod lm;
@@ -150,11 +154,13 @@ impl<'a> FitData<'a> {
     }
 
     fn template(&self, spec: &ModelSpec, opt: &OeOptions) -> Option<Arc<Template>> {
-        if opt.averaging != Averaging::Periods || !(spec.drive_hz > 0.0) {
+        if opt.averaging == Averaging::Off || !(spec.drive_hz > 0.0) {
             return None;
         }
         let end = self.end(opt);
-        let degree = spec.drift_degree.unwrap_or(0);
+        let spec_degree = spec.drift_degree.unwrap_or(0);
+        // At least a line: its size tells whether the output is in steady state.
+        let degree = spec_degree.max(1);
         let key = (spec.drive_hz.to_bits(), opt.skip, end, degree);
         let cached = self
             .templates
@@ -163,13 +169,22 @@ impl<'a> FitData<'a> {
             .iter()
             .find(|(k, _)| *k == key)
             .map(|(_, t)| t.clone());
-        if let Some(t) = cached {
-            return t;
-        }
-        // Computed outside the lock: it runs in parallel itself.
-        let t = Template::new(self.u, self.y, opt.skip, end, spec.drive_hz, self.ts, degree).map(Arc::new);
-        self.templates.lock().unwrap_or_else(std::sync::PoisonError::into_inner).push((key, t.clone()));
-        t
+        let t = match cached {
+            Some(t) => t,
+            None => {
+                // Computed outside the lock: it runs in parallel itself.
+                let t = Template::new(self.u, self.y, opt.skip, end, spec.drive_hz, self.ts, degree)
+                    .map(Arc::new);
+                self.templates
+                    .lock()
+                    .unwrap_or_else(std::sync::PoisonError::into_inner)
+                    .push((key, t.clone()));
+                t
+            }
+        }?;
+        let unmodelled_trend =
+            t.trend_rms.get(spec_degree..).unwrap_or(&[]).iter().map(|r| r * r).sum::<f64>().sqrt();
+        (opt.averaging == Averaging::PeriodsAndTrend || unmodelled_trend <= t.noise_rms).then_some(t)
     }
 }
 
@@ -311,7 +326,9 @@ fn fit_once(
     let (prob, scoring, used) = match periodic {
         Some((t, min_warmup, max_warmup, len)) => {
             let target = t.values(min_warmup, max_warmup + len);
-            let trend = t.trend.get(1..).unwrap_or(&[]).to_vec();
+            // The trend terms the spec has, beyond the fitted offset.
+            let degree = spec.drift_degree.unwrap_or(0);
+            let trend = t.trend.get(1..=degree).unwrap_or(&[]).to_vec();
             let drift = spec.drift_degree.map(|_| 0);
             let prob = Problem::new(u, ts, spec, target, min_warmup, drift, trend).map_err(|e| (e, 0))?;
             let used = DataUsed::Periods { from: t.from, to: t.to, periods: t.periods, scored: len };

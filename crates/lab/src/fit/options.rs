@@ -72,9 +72,18 @@ pub enum Averaging {
     /// Fit sample by sample.
     Off,
     /// When the drive is periodic at the spec's drive frequency over the fitted part (after
-    /// the start-up), fit the model's periodic steady state to the average period of the
-    /// output (see the module docs); otherwise fit sample by sample.
+    /// the start-up) and the output is in steady state, fit the model's periodic steady state
+    /// to the average period of the output (see the module docs); otherwise fit sample by
+    /// sample. The output counts as steady when its linear trend (beyond the spec's drift
+    /// degree) has an RMS below that of its noise: a model without a drift term can follow a
+    /// trend in part through its dynamics (a slow pole, a creeping loop), which a fit on the
+    /// samples rewards and a fit on the average period cannot see.
     Periods,
+    /// As [`Averaging::Periods`], but a trend of the spec's drift degree (at least a line) is
+    /// always separated from the periodic part by least squares first: the model explains
+    /// the periodic part, and a trend only through its drift term. For a diagnosis, which
+    /// tries a drift term of its own.
+    PeriodsAndTrend,
 }
 
 /// When Levenberg–Marquardt stops. The iteration limit is a safety net: a fit that hits it

@@ -37,6 +37,10 @@ pub(crate) struct Template {
     pub trend: Vec<f64>,
     /// Whole periods averaged.
     pub periods: f64,
+    /// RMS of what the harmonics and the trend leave of the output (noise).
+    pub noise_rms: f64,
+    /// RMS over the averaged samples of each trend term `c_j t^j`, `j ≥ 1`, centred.
+    pub trend_rms: Vec<f64>,
     /// Samples averaged: `[from, to)`.
     pub from: usize,
     /// End of the averaged samples.
@@ -122,7 +126,9 @@ impl Template {
         let mut pp = nalgebra::DMatrix::<f64>::zeros(npoly, npoly);
         let mut py = nalgebra::DVector::<f64>::zeros(npoly);
         let mut pu = nalgebra::DVector::<f64>::zeros(npoly);
-        let mut uu = 0.0;
+        let (mut uu, mut yy) = (0.0, 0.0);
+        // Per trend term: Σ τ^j and Σ τ^2j, for its centred RMS.
+        let mut tm = vec![(0.0, 0.0); npoly];
         for n in from..to {
             let tau = n as f64 / t_scale;
             let mut p = vec![1.0; npoly];
@@ -137,6 +143,11 @@ impl Template {
                 }
             }
             uu += u[n] * u[n];
+            yy += y[n] * y[n];
+            for (j, t) in tm.iter_mut().enumerate() {
+                t.0 += p[j];
+                t.1 += p[j] * p[j];
+            }
         }
         // Normal equations: [poly, sin_1, cos_1, …].
         let m = npoly + 2 * kmax;
@@ -188,9 +199,16 @@ impl Template {
             return None;
         }
         let coef = chol.solve(&rhs);
+        let noise_rms = ((yy - coef.dot(&rhs)).max(0.0) / len as f64).sqrt();
+        let trend_rms = (1..npoly)
+            .map(|j| {
+                let (m1, m2) = (tm[j].0 / len as f64, tm[j].1 / len as f64);
+                coef[j].abs() * (m2 - m1 * m1).max(0.0).sqrt()
+            })
+            .collect();
         let trend = (0..npoly).map(|j| coef[j] / (t_scale * ts).powi(j as i32)).collect();
         let harmonics = (0..kmax).map(|a| (coef[npoly + 2 * a], coef[npoly + 2 * a + 1])).collect();
-        Some(Self { cycles, harmonics, trend, periods, from, to })
+        Some(Self { cycles, harmonics, trend, periods, noise_rms, trend_rms, from, to })
     }
 
     /// The period's value plus the trend's constant at samples `from..to`.
@@ -238,6 +256,9 @@ mod tests {
         let y: Vec<f64> = (0..n).map(|k| clean(k) + 0.05 * k as f64 * ts + noise()).collect();
         let t = Template::new(&u, &y, 1000, n, f, ts, 1).unwrap();
         assert!((t.trend[1] - 0.05).abs() < 2e-3, "{:?}", t.trend);
+        // Uniform noise of ±0.05: RMS 0.029; the trend over 19 s: 0.05·19/√12 = 0.27.
+        assert!((t.noise_rms - 0.0289).abs() < 1e-3, "{}", t.noise_rms);
+        assert!((t.trend_rms[0] - 0.274).abs() < 0.01, "{:?}", t.trend_rms);
         let v = t.values(5000, 5100);
         for (i, vi) in v.iter().enumerate() {
             let want = clean(5000 + i);
