@@ -325,9 +325,9 @@ fn fit_once(
     });
     let (prob, scoring, used) = match periodic {
         Some((t, min_warmup, max_warmup, len)) => {
-            let target = t.values(min_warmup, max_warmup + len);
             // The trend terms the spec has, beyond the fitted offset.
             let degree = spec.drift_degree.unwrap_or(0);
+            let target = t.values(min_warmup, max_warmup + len, degree);
             let trend = t.trend.get(1..=degree).unwrap_or(&[]).to_vec();
             let drift = spec.drift_degree.map(|_| 0);
             let prob = Problem::new(u, ts, spec, target, min_warmup, drift, trend).map_err(|e| (e, 0))?;

@@ -41,6 +41,8 @@ pub(crate) struct Template {
     pub noise_rms: f64,
     /// RMS over the averaged samples of each trend term `c_j t^j`, `j ≥ 1`, centred.
     pub trend_rms: Vec<f64>,
+    /// Mean over the averaged samples of each trend term `c_j t^j`, `j ≥ 0`.
+    trend_mean: Vec<f64>,
     /// Samples averaged: `[from, to)`.
     pub from: usize,
     /// End of the averaged samples.
@@ -206,14 +208,18 @@ impl Template {
                 coef[j].abs() * (m2 - m1 * m1).max(0.0).sqrt()
             })
             .collect();
+        let trend_mean = (0..npoly).map(|j| coef[j] * tm[j].0 / len as f64).collect();
         let trend = (0..npoly).map(|j| coef[j] / (t_scale * ts).powi(j as i32)).collect();
         let harmonics = (0..kmax).map(|a| (coef[npoly + 2 * a], coef[npoly + 2 * a + 1])).collect();
-        Some(Self { cycles, harmonics, trend, periods, noise_rms, trend_rms, from, to })
+        Some(Self { cycles, harmonics, trend, periods, noise_rms, trend_rms, trend_mean, from, to })
     }
 
-    /// The period's value plus the trend's constant at samples `from..to`.
-    pub fn values(&self, from: usize, to: usize) -> Vec<f64> {
-        let mut v = vec![self.trend[0]; to.saturating_sub(from)];
+    /// The period's value at samples `from..to`, plus the level of a model whose drift has
+    /// `degree`: the trend's constant, and the mean of the trend terms above `degree` (what a
+    /// fit on the samples would give a model that cannot follow them).
+    pub fn values(&self, from: usize, to: usize, degree: usize) -> Vec<f64> {
+        let level = self.trend[0] + self.trend_mean.iter().skip(degree + 1).sum::<f64>();
+        let mut v = vec![level; to.saturating_sub(from)];
         for (k, &(a, b)) in self.harmonics.iter().enumerate() {
             let ck = (k + 1) as f64 * self.cycles;
             let (ds, dc) = (TAU * (ck - ck.floor())).sin_cos();
@@ -259,7 +265,7 @@ mod tests {
         // Uniform noise of ±0.05: RMS 0.029; the trend over 19 s: 0.05·19/√12 = 0.27.
         assert!((t.noise_rms - 0.0289).abs() < 1e-3, "{}", t.noise_rms);
         assert!((t.trend_rms[0] - 0.274).abs() < 0.01, "{:?}", t.trend_rms);
-        let v = t.values(5000, 5100);
+        let v = t.values(5000, 5100, 1);
         for (i, vi) in v.iter().enumerate() {
             let want = clean(5000 + i);
             assert!((vi - want).abs() < 5e-3, "{i}: {vi} vs {want}");
