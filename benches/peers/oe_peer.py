@@ -87,15 +87,26 @@ def columns(u, phi, skip, end):
 
 
 def stable(a1, a2):
-    return np.all(np.abs(np.roots([1.0, -a1, -a2])) < 1.0)
+    # Roots of z^2 - a1 z - a2 inside the unit circle (Jury's conditions).
+    return abs(a2) < 1.0 and abs(a1) < 1.0 - a2
 
 
 class Problem:
     def __init__(self, u, y, skip, end):
         self.u, self.y, self.skip, self.end = u, y[skip:end], skip, end
+        self.last = (None, None)
 
     def solve(self, phi):
-        """theta, residual and the pieces of the Jacobian, or None when unstable."""
+        """theta, residual and the pieces of the Jacobian, or None when unstable (the last
+        one is kept: least_squares asks for the residual and the Jacobian at the same point)."""
+        key = np.asarray(phi, dtype=np.float64).tobytes()
+        if self.last[0] == key:
+            return self.last[1]
+        out = self._solve(phi)
+        self.last = (key, out)
+        return out
+
+    def _solve(self, phi):
         if not (np.all(np.isfinite(phi)) and stable(phi[0], phi[1])):
             return None
         Z, S1, S2, GH, ok = columns(self.u, np.asarray(phi, dtype=np.float64), self.skip, self.end)
@@ -110,7 +121,7 @@ class Problem:
             theta = np.array([rhs[0] / G[0, 0], 0.0])
             active = [0]
         r = self.y - Z @ theta
-        return theta, r, Z, S1, S2, GH, active
+        return theta, r, Z, S1, S2, GH, active, G
 
     def cost(self, phi):
         s = self.solve(phi)
@@ -124,10 +135,10 @@ class Problem:
         s = self.solve(phi)
         if s is None:
             return np.zeros((len(self.y), 5))
-        theta, r, Z, S1, S2, GH, active = s
+        theta, r, Z, S1, S2, GH, active, G = s
         V = np.column_stack([S1 @ theta, S2 @ theta, -theta[1] * GH])
         Za = Z[:, active]
-        coef, *_ = np.linalg.lstsq(Za, V, rcond=None)
+        coef = np.linalg.solve(G[np.ix_(active, active)], Za.T @ V)
         return -(V - Za @ coef)
 
     def model(self, phi):
