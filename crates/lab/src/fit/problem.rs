@@ -142,8 +142,9 @@ impl<'a> Problem<'a> {
         let (mut s1, mut s2) = (vec![0.0; nf], vec![0.0; nf]);
         let mut gs = [[0.0f64; 2]; 5];
         let mut x = vec![0.0; nf];
-        let mut xtx = DMatrix::<f64>::zeros(ncol, ncol);
-        let mut xty = DVector::<f64>::zeros(ncol);
+        // Normal equations, lower triangle, row-major (flat for the inner loop).
+        let mut gram = vec![0.0; ncol * ncol];
+        let mut zty = vec![0.0; ncol];
         let mut rows: Vec<f64> = Vec::with_capacity((win.to - win.from) * width);
         let mut row = vec![0.0; width];
         let (mut h, mut u_prev, mut ut_prev) = (0.0, 0.0, 0.0);
@@ -206,7 +207,9 @@ impl<'a> Problem<'a> {
             u_prev = uk;
             ut_prev = ut;
             if k >= win.from {
-                row[..nf].copy_from_slice(&z1);
+                for i in 0..nf {
+                    row[i] = z1[i];
+                }
                 if let Some(d) = self.drift_degree {
                     let t = k as f64 * self.ts / self.t_scale;
                     let mut p = 1.0;
@@ -218,14 +221,17 @@ impl<'a> Problem<'a> {
                 let yk = self.target[k - self.target_from];
                 for i in 0..ncol {
                     let zi = row[i];
-                    xty[i] += zi * yk;
-                    for j in 0..=i {
-                        xtx[(i, j)] += zi * row[j];
+                    zty[i] += zi * yk;
+                    let g = &mut gram[i * ncol..i * ncol + i + 1];
+                    for (gj, zj) in g.iter_mut().zip(&row[..=i]) {
+                        *gj += zi * zj;
                     }
                 }
                 if jac {
-                    row[ncol..ncol + nf].copy_from_slice(&s1);
-                    row[ncol + nf..ncol + 2 * nf].copy_from_slice(&s2);
+                    for i in 0..nf {
+                        row[ncol + i] = s1[i];
+                        row[ncol + nf + i] = s2[i];
+                    }
                     for q in 0..5 {
                         row[ncol + 2 * nf + q] = gs[q][0];
                     }
@@ -233,11 +239,8 @@ impl<'a> Problem<'a> {
                 rows.extend_from_slice(&row);
             }
         }
-        for i in 0..ncol {
-            for j in 0..i {
-                xtx[(j, i)] = xtx[(i, j)];
-            }
-        }
+        let mut xtx = DMatrix::<f64>::from_fn(ncol, ncol, |i, j| gram[i.max(j) * ncol + i.min(j)]);
+        let xty = DVector::<f64>::from_vec(zty);
         // Tiny ridge relative to the diagonal keeps a nearly collinear column harmless.
         let scale = (0..ncol).map(|i| xtx[(i, i)]).fold(0.0, f64::max);
         for i in 0..ncol {
@@ -286,9 +289,9 @@ impl<'a> Problem<'a> {
             return Some(Eval { theta, cost, samples, jac: None });
         };
         let nfree = free.len();
-        let mut vtv = DMatrix::<f64>::zeros(nfree, nfree);
-        let mut ztv = DMatrix::<f64>::zeros(ncol, nfree);
-        let mut vtr = DVector::<f64>::zeros(nfree);
+        let mut vtv = vec![0.0; nfree * nfree];
+        let mut ztv = vec![0.0; ncol * nfree];
+        let mut vtr = vec![0.0; nfree];
         let mut v = vec![0.0; nfree];
         let th = theta.as_slice();
         for (r, k) in rows.chunks_exact(width).zip(win.from..) {
@@ -306,20 +309,19 @@ impl<'a> Problem<'a> {
                 };
             }
             for i in 0..nfree {
-                vtr[i] += v[i] * e;
-                for j in 0..=i {
-                    vtv[(i, j)] += v[i] * v[j];
+                let vi = v[i];
+                vtr[i] += vi * e;
+                for (g, vj) in vtv[i * nfree..i * nfree + i + 1].iter_mut().zip(&v[..=i]) {
+                    *g += vi * vj;
                 }
-                for (col, zc) in r[..ncol].iter().enumerate() {
-                    ztv[(col, i)] += zc * v[i];
+                for (g, zc) in ztv[i * ncol..(i + 1) * ncol].iter_mut().zip(&r[..ncol]) {
+                    *g += zc * vi;
                 }
             }
         }
-        for i in 0..nfree {
-            for j in 0..i {
-                vtv[(j, i)] = vtv[(i, j)];
-            }
-        }
+        let vtv = DMatrix::<f64>::from_fn(nfree, nfree, |i, j| vtv[i.max(j) * nfree + i.min(j)]);
+        let mut ztv = DMatrix::<f64>::from_fn(ncol, nfree, |c, i| ztv[i * ncol + c]);
+        let vtr = DVector::<f64>::from_vec(vtr);
         if clamped {
             ztv.row_mut(1).fill(0.0);
         }
