@@ -154,7 +154,7 @@ impl<'a> FitData<'a> {
     }
 
     fn template(&self, spec: &ModelSpec, opt: &OeOptions) -> Option<Arc<Template>> {
-        if opt.averaging == Averaging::Off || !(spec.drive_hz > 0.0) {
+        if opt.averaging == Averaging::Off || spec.drive_hz.is_nan() || spec.drive_hz <= 0.0 {
             return None;
         }
         let end = self.end(opt);
@@ -258,7 +258,7 @@ fn decay_samples(ar: [f64; 2]) -> usize {
     let [a1, a2] = ar;
     let disc = a1 * a1 + 4.0 * a2;
     let r = if disc < 0.0 { (-a2).sqrt() } else { 0.5 * (a1.abs() + disc.sqrt()) };
-    if !(r > 0.0) {
+    if r.is_nan() || r <= 0.0 {
         return 0;
     }
     if r >= 1.0 {

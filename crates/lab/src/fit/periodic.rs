@@ -197,7 +197,7 @@ impl Template {
         let chol = g.cholesky()?;
         // Is the drive periodic? What the harmonics and the trend leave of it.
         let left = uu - chol.solve(&rhs_u).dot(&rhs_u);
-        if !(uu > 0.0) || left > MAX_DRIVE_APERIODIC.powi(2) * uu {
+        if uu.is_nan() || uu <= 0.0 || left > MAX_DRIVE_APERIODIC.powi(2) * uu {
             return None;
         }
         let coef = chol.solve(&rhs);

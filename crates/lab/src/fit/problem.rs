@@ -207,9 +207,7 @@ impl<'a> Problem<'a> {
             u_prev = uk;
             ut_prev = ut;
             if k >= win.from {
-                for i in 0..nf {
-                    row[i] = z1[i];
-                }
+                row[..nf].copy_from_slice(&z1);
                 if let Some(d) = self.drift_degree {
                     let t = k as f64 * self.ts / self.t_scale;
                     let mut p = 1.0;
