@@ -40,7 +40,11 @@
 //! [`MAX_WARMUP_S`]), and its next whole periods (at least two and
 //! [`MIN_WINDOW_SAMPLES`]) are compared with the average period. The cost is then flat in
 //! the record's length once the record is long enough to average, and a drift's slope comes
-//! from the whole fitted part. Otherwise (a drive that is not periodic, too few periods) the
+//! from the whole fitted part. An average period cannot show a model whose own output is
+//! not periodic (a loop that keeps creeping, a slow pole): each refined model is simulated
+//! over the fitted samples (at most [`STEADY_CHECK_S`]) and kept only if its RMS there is
+//! within [`STEADY_FACTOR`] of what its criterion and the averaged-out noise and trend
+//! predict; if no start passes, the fit is done on the samples. Otherwise (a drive that is not periodic, too few periods) the
 //! fit scores every sample of `[skip, fit_end)`, and so it does when the output drifts by
 //! more than its noise and the model has no drift term to follow it
 //! ([`Averaging::Periods`]); a diagnosis separates the trend instead
@@ -323,8 +327,15 @@ fn fit_once(
         let max_warmup = (end.checked_sub(len)?).min(opt.skip + (MAX_WARMUP_S / ts) as usize);
         (max_warmup >= min_warmup).then_some((t, min_warmup, max_warmup, len))
     });
+    // Under averaging: what the samples must come to in steady state (the noise and the trend
+    // the model cannot follow), and how far they are checked.
+    let mut steady_check: Option<(f64, usize)> = None;
     let (prob, scoring, used) = match periodic {
         Some((t, min_warmup, max_warmup, len)) => {
+            let spec_degree = spec.drift_degree.unwrap_or(0);
+            let unmodelled = t.trend_rms.get(spec_degree..).unwrap_or(&[]).iter().map(|r| r * r).sum::<f64>();
+            let check_end = end.min(opt.skip + (STEADY_CHECK_S / ts) as usize);
+            steady_check = Some(((t.noise_rms.powi(2) + unmodelled).sqrt(), check_end));
             // The trend terms the spec has, beyond the fitted offset.
             let degree = spec.drift_degree.unwrap_or(0);
             let target = t.values(min_warmup, max_warmup + len, degree);
@@ -456,10 +467,37 @@ fn fit_once(
         })
         .collect();
     evaluations += runs.iter().map(|r| r.evaluations).sum::<usize>();
-    let best = runs.into_iter().min_by(|a, b| a.eval.cost.total_cmp(&b.eval.cost));
-    let best = best.ok_or((FitError::NoStableModel, evaluations))?;
-    Ok(done(&best.phi, best.eval, best.stop, best.iterations, evaluations))
+    let mut runs = runs;
+    runs.sort_by(|a, b| a.eval.cost.total_cmp(&b.eval.cost));
+    let Some((floor, check_end)) = steady_check else {
+        let best = runs.into_iter().next().ok_or((FitError::NoStableModel, evaluations))?;
+        return Ok(done(&best.phi, best.eval, best.stop, best.iterations, evaluations));
+    };
+    // The average period cannot show a model whose output is not periodic (a loop still
+    // creeping, a slow pole): the best run whose free run on the fitted samples comes to what
+    // its criterion and the noise predict, else the fit on the samples.
+    for run in runs {
+        let fit = done(&run.phi, run.eval, run.stop, run.iterations, evaluations);
+        let expected = (fit.rms_fit.powi(2) + floor.powi(2)).sqrt();
+        let steady = fit.model.simulate(&u[..check_end], ts).is_ok_and(|sim| {
+            analysis::rms_diff(&sim[opt.skip..], &y[opt.skip..check_end]) <= STEADY_FACTOR * expected
+        });
+        if steady {
+            return Ok(fit);
+        }
+    }
+    let mut fit = fit_once(data, spec, starts, &OeOptions { averaging: Averaging::Off, ..opt.clone() })
+        .map_err(|(e, n)| (e, n + evaluations))?;
+    fit.evaluations += evaluations;
+    Ok(fit)
 }
+
+/// A fit on the average period is checked on the fitted samples over at most this long (s)
+/// after the start-up.
+pub const STEADY_CHECK_S: f64 = 20.0;
+/// ... and accepted when the free run's RMS there is at most this many times what the
+/// criterion and the averaged-out noise and trend predict.
+pub const STEADY_FACTOR: f64 = 1.5;
 
 /// Free-run RMS error of `model` on `y[from..]` (simulated from sample 0). Non-finite if
 /// the model is unstable.
