@@ -44,7 +44,7 @@
 //! not periodic (a loop that keeps creeping, a slow pole): each refined model is simulated
 //! over the fitted samples (at most [`STEADY_CHECK_S`]) and kept only if its RMS there is
 //! within [`STEADY_FACTOR`] of what its criterion and the averaged-out noise and trend
-//! predict; if no start passes, the fit is done on the samples. Otherwise (a drive that is not periodic, too few periods) the
+//! predict; if no start passes, the fit is done on those samples. Otherwise (a drive that is not periodic, too few periods) the
 //! fit scores every sample of `[skip, fit_end)`, and so it does when the output drifts by
 //! more than its noise and the model has no drift term to follow it
 //! ([`Averaging::Periods`]); a diagnosis separates the trend instead
@@ -333,9 +333,9 @@ fn fit_once(
     let (prob, scoring, used) = match periodic {
         Some((t, min_warmup, max_warmup, len)) => {
             let spec_degree = spec.drift_degree.unwrap_or(0);
-            let unmodelled = t.trend_rms.get(spec_degree..).unwrap_or(&[]).iter().map(|r| r * r).sum::<f64>();
             let check_end = end.min(opt.skip + (STEADY_CHECK_S / ts) as usize);
-            steady_check = Some(((t.noise_rms.powi(2) + unmodelled).sqrt(), check_end));
+            let unmodelled = t.unmodelled_trend_rms(spec_degree, opt.skip, check_end, ts);
+            steady_check = Some((t.noise_rms.hypot(unmodelled), check_end));
             // The trend terms the spec has, beyond the fitted offset.
             let degree = spec.drift_degree.unwrap_or(0);
             let target = t.values(min_warmup, max_warmup + len, degree);
@@ -486,8 +486,11 @@ fn fit_once(
             return Ok(fit);
         }
     }
-    let mut fit = fit_once(data, spec, starts, &OeOptions { averaging: Averaging::Off, ..opt.clone() })
-        .map_err(|(e, n)| (e, n + evaluations))?;
+    // On the checked stretch: a fit on every sample of a long record would cost as much as
+    // the record is long.
+    let on_samples =
+        OeOptions { averaging: Averaging::Off, samples: Samples::First(check_end), ..opt.clone() };
+    let mut fit = fit_once(data, spec, starts, &on_samples).map_err(|(e, n)| (e, n + evaluations))?;
     fit.evaluations += evaluations;
     Ok(fit)
 }

@@ -236,6 +236,21 @@ impl Template {
         v
     }
 
+    /// RMS over samples `from..to` (interval `ts`) of the trend terms above `degree`, less
+    /// their mean over the averaged samples: what a model of that drift degree, at the
+    /// level [`Template::values`] gives it, cannot follow there.
+    pub fn unmodelled_trend_rms(&self, degree: usize, from: usize, to: usize, ts: f64) -> f64 {
+        let mean: f64 = self.trend_mean.iter().skip(degree + 1).sum();
+        let ss: f64 = (from..to)
+            .map(|n| {
+                let t = n as f64 * ts;
+                let v: f64 = (degree + 1..self.trend.len()).map(|j| self.trend[j] * t.powi(j as i32)).sum();
+                (v - mean).powi(2)
+            })
+            .sum();
+        (ss / (to - from).max(1) as f64).sqrt()
+    }
+
     /// Samples per period.
     pub fn period(&self) -> f64 {
         1.0 / self.cycles
