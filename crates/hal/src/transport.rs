@@ -439,6 +439,12 @@ impl<P: Port> Link<P> {
         }
     }
 
+    /// Writes `bytes` as they are (no framing, no fault injection): for tests that send
+    /// damaged frames on purpose.
+    pub fn send_raw(&mut self, bytes: &[u8]) -> Result<(), TransportError> {
+        self.port.write_all(bytes).map_err(|e| self.io(e))
+    }
+
     /// Writes a lone delimiter (never damaged), so the peer drops any half-received frame
     /// and the next frame starts clean.
     pub fn flush_peer(&mut self) -> Result<(), TransportError> {
@@ -507,8 +513,20 @@ pub enum BoardError {
     },
     /// The link failed.
     Link(TransportError),
-    /// The board refused a request, or did not answer it.
-    Refused(String),
+    /// The board refused a request.
+    Refused {
+        /// The port.
+        port: String,
+        /// The board's fault text.
+        fault: String,
+    },
+    /// The board did not answer a request.
+    NoAnswer {
+        /// The port.
+        port: String,
+        /// The request: `Stop`, or the kind byte of the message.
+        request: Request,
+    },
     /// No measurement came back for a sample after every attempt.
     NoMeasurement {
         /// The sample.
@@ -525,7 +543,11 @@ impl fmt::Display for BoardError {
                 write!(f, "sample {sample}: the command u is not finite")
             }
             BoardError::Link(e) => write!(f, "{e}"),
-            BoardError::Refused(text) => f.write_str(text),
+            BoardError::Refused { port, fault } => write!(f, "{port}: the board refused: {fault}"),
+            BoardError::NoAnswer { port, request: Request::Stop } => write!(f, "{port}: no answer to Stop"),
+            BoardError::NoAnswer { port, request: Request::Kind(kind) } => {
+                write!(f, "{port}: no answer to message 0x{kind:02x}")
+            }
             BoardError::NoMeasurement { sample, attempts } => {
                 write!(f, "sample {sample}: no measurement after {attempts} attempts")
             }
@@ -540,6 +562,15 @@ impl std::error::Error for BoardError {
             _ => None,
         }
     }
+}
+
+/// A request to the board that went unanswered.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Request {
+    /// `Stop`.
+    Stop,
+    /// A configuration message of this kind byte.
+    Kind(u8),
 }
 
 impl From<TransportError> for BoardError {
@@ -573,7 +604,7 @@ impl<P: Port> BoardPlant<P> {
         link.request(&Message::Stop, attempts, timeout, |_, m| {
             matches!(m, Message::Status(_)).then_some(())
         })?
-        .ok_or_else(|| BoardError::Refused(format!("{name}: no answer to Stop")))?;
+        .ok_or_else(|| BoardError::NoAnswer { port: name.clone(), request: Request::Stop })?;
         for (msg, want) in [
             (Message::SetPlant(self.params.clone()), kind::SET_PLANT),
             (Message::Start { mode: Mode::Plant, samples: 0 }, kind::START),
@@ -586,10 +617,10 @@ impl<P: Port> BoardPlant<P> {
             match answer {
                 Some(Ok(())) => {}
                 Some(Err(text)) => {
-                    return Err(BoardError::Refused(format!("{name}: the board refused: {text}")));
+                    return Err(BoardError::Refused { port: name.clone(), fault: text });
                 }
                 None => {
-                    return Err(BoardError::Refused(format!("{name}: no answer to message 0x{want:02x}")));
+                    return Err(BoardError::NoAnswer { port: name.clone(), request: Request::Kind(want) });
                 }
             }
         }
@@ -697,9 +728,14 @@ pub(crate) mod test_board {
                         }
                     }
                 }
-                if ticking && last_tick.elapsed() >= patience {
+                // Between runs the board ticks every millisecond, as the firmware does (its
+                // safe state runs on the tick).
+                let period = if ticking { patience } else { Duration::from_millis(1) };
+                if last_tick.elapsed() >= period {
                     last_tick = Instant::now();
-                    if dev.on_tick(0, &mut send) == TimerRequest::Stop {
+                    if dev.on_tick(0, &mut boucwen_link::analog::NoFrontEnd, &|| 0, &mut send)
+                        == TimerRequest::Stop
+                    {
                         ticking = false;
                     }
                 }

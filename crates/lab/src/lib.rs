@@ -8,8 +8,9 @@
 //! | [`record`] | measured records on disk (CSV), [`record::Replay`] as a plant |
 //! | [`analysis`] | spectra, harmonics, whole periods |
 //! | [`fit`] | identification: the paper's RLS and output error |
-//! | [`design`] | an identified model (or a plant) to the board's parameters |
-//! | [`experiment`] | closed-loop runs of the compensator and the peers |
+//! | [`design`] | an identified model (or a plant) to the board's parameters; the cancellation rule and the probe of the response at `n·f`, shared by `boucwen hil` and the sweep |
+//! | [`experiment`] | one closed-loop runner for any core `Controller` on any core `Plant`: the compensator (with preview) and the peers |
+//! | [`simulate`] | the virtual bimorph on a sine or a drive file, to a record |
 //! | [`sweep`] | the paper's Figs. 10 and 16 on the virtual bimorph |
 //! | [`diagnose`] | what a model gets wrong on a record, the cause, the term that fixes it |
 //! | [`report`], [`plot`] | files, pages and SVG figures |
@@ -25,4 +26,5 @@ pub mod hidden;
 pub mod plot;
 pub mod record;
 pub mod report;
+pub mod simulate;
 pub mod sweep;

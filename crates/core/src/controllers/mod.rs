@@ -15,7 +15,7 @@
 //!
 //! ## Open loop
 //! `u[k] = sat(d[k] / G0)`, `G0` the identified model's static gain
-//! ([`ExtendedParams::static_gain`], `(A1 - A)/(1 - Σ a_j)`).
+//! ([`crate::model::ExtendedParams::static_gain`], `(A1 - A)/(1 - Σ a_j)`).
 //!
 //! ## PI feedback
 //! ```text
