@@ -188,7 +188,19 @@ pub enum ErrorKind {
 impl fmt::Display for RecordError {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self.at {
-            Some(At::Line(line)) => write!(f, "{}:{line}: {}", self.source, self.kind),
+            Some(At::Line(line)) => {
+                write!(f, "{}:{line}: {}", self.source, self.kind)?;
+                // Read from a file: the likely mistake is the unit, and the flag fixes it.
+                match &self.kind {
+                    ErrorKind::OutOfRange { column, .. } if column == "u" => {
+                        write!(f, " (if u is in mV, give --u-unit mV)")
+                    }
+                    ErrorKind::OutOfRange { column, .. } if column == "y" || column == "d" => {
+                        write!(f, " (if {column} is in nm, give --y-unit nm)")
+                    }
+                    _ => Ok(()),
+                }
+            }
             Some(At::Sample(k)) => write!(f, "{}: sample {k}: {}", self.source, self.kind),
             None => write!(f, "{}: {}", self.source, self.kind),
         }
@@ -260,12 +272,7 @@ impl fmt::Display for ErrorKind {
                 write!(f, "column {column:?}: {text:?} is not finite")
             }
             ErrorKind::OutOfRange { column, value, limit, unit } => {
-                write!(f, "column {column:?}: {value} is beyond ±{limit} {unit}")?;
-                match column.as_str() {
-                    "u" => write!(f, " (if u is in mV, give --u-unit mV)"),
-                    "y" | "d" => write!(f, " (if {column} is in nm, give --y-unit nm)"),
-                    _ => Ok(()),
-                }
+                write!(f, "column {column:?}: {value} is beyond ±{limit} {unit}")
             }
             ErrorKind::TimeNotIncreasing { previous, t } => {
                 write!(f, "column \"t\": {t} does not increase from the previous row's {previous}")
