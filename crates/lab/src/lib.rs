@@ -7,6 +7,7 @@
 //! |---|---|
 //! | [`record`] | measured records on disk (CSV), [`record::Replay`] as a plant |
 //! | [`analysis`] | spectra, harmonics, whole periods |
+//! | [`steady`] | the drive's kind and the steady window of a record |
 //! | [`fit`] | identification: the paper's RLS and output error |
 //! | [`design`] | an identified model (or a plant) to the board's parameters |
 //! | [`experiment`] | closed-loop runs of the compensator and the peers |
@@ -25,4 +26,5 @@ pub mod hidden;
 pub mod plot;
 pub mod record;
 pub mod report;
+pub mod steady;
 pub mod sweep;
