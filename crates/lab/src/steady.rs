@@ -709,6 +709,221 @@ fn settling(y: &[f64], ts: f64, drive: &Drive, p: f64) -> usize {
     at(first)
 }
 
+/// Why a record has no response worth analysing.
+#[derive(Clone, Debug, PartialEq)]
+pub enum NoResponse {
+    /// The output does not change.
+    Constant {
+        /// Its value (µm).
+        value_um: f64,
+    },
+    /// The output takes only a few values: it moves less than the sensor resolves.
+    BelowResolution {
+        /// Distinct values in the window.
+        levels: usize,
+        /// The smallest step between them (µm).
+        step_um: f64,
+    },
+    /// The output does not follow the drive.
+    Uncorrelated {
+        /// Share of the output's variance on the drive's lines (periodic drives) or the
+        /// largest correlation between drive and output over the lags tried (others).
+        share: f64,
+        /// Whether `share` is the variance share (periodic drive).
+        periodic: bool,
+    },
+}
+
+impl std::fmt::Display for NoResponse {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            NoResponse::Constant { value_um } => write!(
+                f,
+                "no response to analyse: the output is constant ({value_um} µm throughout the window); \
+                 is the sensor connected?"
+            ),
+            NoResponse::BelowResolution { levels, step_um } => write!(
+                f,
+                "no response to analyse: the output takes only {levels} values {step_um:.3e} µm apart, below what \
+                 the sensor resolves"
+            ),
+            NoResponse::Uncorrelated { share, periodic: true } => write!(
+                f,
+                "no response to analyse: the output does not follow the drive (the drive's frequencies hold {:.1} % \
+                 of its variance, less than {:.0} %)",
+                100.0 * share,
+                100.0 * MIN_DRIVEN_SHARE
+            ),
+            NoResponse::Uncorrelated { share, periodic: false } => write!(
+                f,
+                "no response to analyse: the output does not follow the drive (largest correlation {share:.3} \
+                 over lags up to {MAX_LAG_S} s, less than {MIN_CORRELATION})"
+            ),
+        }
+    }
+}
+
+impl std::error::Error for NoResponse {}
+
+/// Fewest distinct output values in a window that make a response.
+pub const MIN_LEVELS: usize = 4;
+/// Smallest share of the output's variance on a periodic drive's lines for the output to
+/// follow the drive.
+pub const MIN_DRIVEN_SHARE: f64 = 0.02;
+/// Smallest correlation between an aperiodic drive and the output.
+pub const MIN_CORRELATION: f64 = 0.1;
+/// Longest lag between an aperiodic drive and the output tried (s).
+pub const MAX_LAG_S: f64 = 0.1;
+
+/// Checks that the output responds to the drive in the window (see [`NoResponse`]).
+pub fn check_response(u: &[f64], y: &[f64], ts: f64, drive: &Drive) -> Result<(), NoResponse> {
+    let (lo, hi) = y.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &v| (a.min(v), b.max(v)));
+    if !(hi > lo) {
+        return Err(NoResponse::Constant { value_um: if lo.is_finite() { lo } else { 0.0 } });
+    }
+    let mut sorted = y.to_vec();
+    sorted.sort_by(f64::total_cmp);
+    sorted.dedup();
+    if sorted.len() < MIN_LEVELS {
+        let step_um = sorted.windows(2).map(|w| w[1] - w[0]).fold(f64::INFINITY, f64::min);
+        return Err(NoResponse::BelowResolution { levels: sorted.len(), step_um });
+    }
+    match drive.kind {
+        DriveKind::Sine | DriveKind::Periodic => {
+            let n = analysis::whole_periods(y.len(), drive.freq_hz, ts);
+            let kmax = (((0.5 / ts) / drive.freq_hz).ceil() as usize).clamp(1, DRIVE_HARMONICS);
+            let h = analysis::harmonics(&y[..n], drive.freq_hz, ts, kmax);
+            let share = h.iter().map(|t| t.amp * t.amp / 2.0).sum::<f64>() / variance(&y[..n]).max(1e-300);
+            if share < MIN_DRIVEN_SHARE {
+                return Err(NoResponse::Uncorrelated { share, periodic: true });
+            }
+        }
+        DriveKind::Multisine => {
+            let p = drive.period_samples.unwrap_or(1.0).round().max(1.0) as usize;
+            let share = averaged_period_share(y, p);
+            if share < MIN_DRIVEN_SHARE {
+                return Err(NoResponse::Uncorrelated { share, periodic: true });
+            }
+        }
+        DriveKind::Aperiodic => {
+            let lags = ((MAX_LAG_S / ts) as usize).min(y.len() / 4);
+            let c = max_correlation(u, y, lags);
+            if c < MIN_CORRELATION {
+                return Err(NoResponse::Uncorrelated { share: c, periodic: false });
+            }
+        }
+        DriveKind::None => {}
+    }
+    Ok(())
+}
+
+/// Share of the variance of `x` in its average over periods of `p` samples.
+fn averaged_period_share(x: &[f64], p: usize) -> f64 {
+    let m = x.len() / p.max(1);
+    if m < 2 {
+        return 1.0;
+    }
+    let mut avg = vec![0.0; p];
+    for k in 0..m * p {
+        avg[k % p] += x[k] / m as f64;
+    }
+    (variance(&avg) / variance(&x[..m * p]).max(1e-300)).min(1.0)
+}
+
+/// The largest `|corr(u[k], y[k + lag])|` for `lag` in `0..=lags`.
+fn max_correlation(u: &[f64], y: &[f64], lags: usize) -> f64 {
+    let n = u.len().min(y.len());
+    let (mu, my) = (analysis::mean(&u[..n]), analysis::mean(&y[..n]));
+    let (su, sy) = (variance(&u[..n]).sqrt(), variance(&y[..n]).sqrt());
+    if !(su > 0.0 && sy > 0.0) {
+        return 0.0;
+    }
+    let len = (2 * n).next_power_of_two();
+    let mut a: Vec<Complex<f64>> =
+        (0..len).map(|k| Complex::new(if k < n { u[k] - mu } else { 0.0 }, 0.0)).collect();
+    let mut b: Vec<Complex<f64>> =
+        (0..len).map(|k| Complex::new(if k < n { y[k] - my } else { 0.0 }, 0.0)).collect();
+    let mut planner = FftPlanner::new();
+    let fwd = planner.plan_fft_forward(len);
+    fwd.process(&mut a);
+    fwd.process(&mut b);
+    let mut c: Vec<Complex<f64>> = a.iter().zip(&b).map(|(x, y)| x.conj() * y).collect();
+    planner.plan_fft_inverse(len).process(&mut c);
+    (0..=lags.min(n - 1))
+        .map(|l| (c[l].re / len as f64 / (n - l) as f64 / (su * sy)).abs())
+        .fold(0.0, f64::max)
+}
+
+/// The output's noise floor (µm) in a window and how it was measured: for a periodic
+/// drive what does not repeat from period to period (a sine or periodic drive: the output
+/// less its harmonics of the drive and a slow cubic trend; a multisine: less its average
+/// period), else from the second difference (an upper bound for a smooth output).
+pub fn noise_floor(y: &[f64], ts: f64, drive: &Drive) -> (f64, &'static str) {
+    match drive.kind {
+        DriveKind::Sine | DriveKind::Periodic => {
+            let n = analysis::whole_periods(y.len(), drive.freq_hz, ts);
+            let kmax = (((0.5 / ts) / drive.freq_hz).ceil() as usize).clamp(1, DRIVE_HARMONICS);
+            let h = analysis::harmonics(&y[..n], drive.freq_hz, ts, kmax);
+            let mut rest: Vec<f64> = y[..n].to_vec();
+            for t in &h {
+                let w = std::f64::consts::TAU * t.freq_hz * ts;
+                for (k, v) in rest.iter_mut().enumerate() {
+                    *v -= t.amp * (w * k as f64 + t.phase).sin();
+                }
+            }
+            (analysis::rms(&detrend_cubic(&rest)), "period_to_period")
+        }
+        DriveKind::Multisine => {
+            let p = drive.period_samples.unwrap_or(1.0).round().max(1.0) as usize;
+            let m = y.len() / p;
+            if m >= 2 {
+                let mut avg = vec![0.0; p];
+                for k in 0..m * p {
+                    avg[k % p] += y[k] / m as f64;
+                }
+                let e: Vec<f64> = (0..m * p).map(|k| y[k] - avg[k % p]).collect();
+                // The deviation from a mean of m periods underestimates by √((m−1)/m).
+                return (analysis::rms(&e) * (m as f64 / (m as f64 - 1.0)).sqrt(), "period_to_period");
+            }
+            (second_difference_noise(y), "second_difference")
+        }
+        _ => (second_difference_noise(y), "second_difference"),
+    }
+}
+
+fn second_difference_noise(y: &[f64]) -> f64 {
+    if y.len() < 3 {
+        return 0.0;
+    }
+    let d: Vec<f64> = y.windows(3).map(|w| w[2] - 2.0 * w[1] + w[0]).collect();
+    analysis::rms(&d) / 6f64.sqrt()
+}
+
+/// `x` minus its least-squares cubic in time.
+fn detrend_cubic(x: &[f64]) -> Vec<f64> {
+    let n = x.len();
+    if n < 8 {
+        return detrend(x);
+    }
+    let half = (n - 1) as f64 / 2.0;
+    let mut ata = nalgebra::Matrix4::<f64>::zeros();
+    let mut atb = nalgebra::Vector4::<f64>::zeros();
+    for (k, &v) in x.iter().enumerate() {
+        let t = (k as f64 - half) / half;
+        let p = nalgebra::Vector4::new(1.0, t, t * t, t * t * t);
+        ata += p * p.transpose();
+        atb += p * v;
+    }
+    let Some(c) = ata.cholesky().map(|ch| ch.solve(&atb)) else { return detrend(x) };
+    x.iter()
+        .enumerate()
+        .map(|(k, &v)| {
+            let t = (k as f64 - half) / half;
+            v - (c[0] + t * (c[1] + t * (c[2] + t * c[3])))
+        })
+        .collect()
+}
+
 /// `x` minus its least-squares line.
 fn detrend(x: &[f64]) -> Vec<f64> {
     let n = x.len();
