@@ -31,6 +31,7 @@ fn one(a: &DiagnoseArgs, path: &Path, report_dir: Option<PathBuf>) -> Result<Str
     let name = path.display().to_string();
     let imported = a.record.read(path)?;
     let r = &imported.record;
+    r.validate_for_fit(diagnose::MIN_SAMPLES).map_err(|e| e.to_string())?;
     let given = a.record.window(r)?;
     let d = diagnose::diagnose_record(&r.u, &r.y, r.ts, r.t0, given, &diagnose::Thresholds::default())
         .map_err(|e| format!("{name}: {e}"))?;
