@@ -111,7 +111,7 @@ pub fn run(a: IdentifyArgs) -> Result<(), String> {
     let len = w.end - w.start;
     let mut fitted = (a.fit_fraction * len as f64).round() as usize;
     if let (true, Some(p)) = (drive.is_periodic(), drive.period_samples) {
-        let periods = (len as f64 / p + 1e-6).floor();
+        let periods = ((len as f64 + 0.5) / p).floor();
         let k = (a.fit_fraction * periods).round().clamp(1.0, (periods - 1.0).max(1.0));
         if periods >= 2.0 {
             fitted = (k * p).round() as usize;

@@ -255,6 +255,28 @@ pub fn instability(ar: [f64; 2], sim: &[f64], ts: f64) -> Option<String> {
     None
 }
 
+/// Whether a free run `sim` drifts away from the output `y` over the held-out part (the
+/// baseline is also refitted when its held-out error is [`RUNAWAY_FACTOR`] times its error
+/// over the fit's criterion): the
+/// error's RMS over its last quarter is more than [`RUNAWAY_FACTOR`] times that over its
+/// first quarter (whole periods of `period` samples where given).
+pub fn drifts_away(sim: &[f64], y: &[f64], period: Option<f64>) -> bool {
+    let n = sim.len().min(y.len());
+    let q = match period {
+        Some(p) if p >= 1.0 && (n as f64) >= 4.0 * p => ((n as f64 / 4.0 / p).floor() * p).round() as usize,
+        _ => n / 4,
+    };
+    if q < 2 {
+        return false;
+    }
+    let first = analysis::rms_diff(&sim[..q], &y[..q]);
+    let last = analysis::rms_diff(&sim[n - q..n], &y[n - q..n]);
+    last > RUNAWAY_FACTOR * first
+}
+
+/// See [`drifts_away`].
+pub const RUNAWAY_FACTOR: f64 = 3.0;
+
 /// Smallest held-out fit (%) of the baseline for a harmonic diagnosis: below it the drive
 /// explains too little of the output.
 pub const MIN_FIT_PCT: f64 = 50.0;
@@ -833,7 +855,8 @@ pub fn plan(
     }
     let samples = end - start;
     let p = drive.period_samples.unwrap_or(1.0 / (drive_hz * ts));
-    let periods = ((samples as f64 / p) + 1e-6).floor() as usize;
+    // The window ends on a whole period rounded to a sample.
+    let periods = ((samples as f64 + 0.5) / p).floor() as usize;
     if periods < MIN_PERIODS {
         return Err(DiagnoseError::TooFewPeriods { drive_hz, periods, window_s });
     }
@@ -907,8 +930,25 @@ fn diagnose_from(
     let opt = plan.opt.clone();
     // The baseline carries an output offset: a sensor's zero is arbitrary.
     let spec = ModelSpec { drift_degree: Some(0), ..ModelSpec::extended(drive_hz) };
-    let baseline = fit::fit_oe(u, y, ts, split, &spec, starts, &opt)?.model;
-    let baseline_sim = baseline.simulate(u, ts)?;
+    let mut baseline = fit::fit_oe(u, y, ts, split, &spec, starts, &opt)?.model;
+    let mut baseline_sim = baseline.simulate(u, ts)?;
+    let criterion = opt.skip..opt.max_samples.min(split);
+    let worse_than_fitted = analysis::rms_diff(&baseline_sim[split..], &y[split..])
+        > RUNAWAY_FACTOR * analysis::rms_diff(&baseline_sim[criterion.clone()], &y[criterion]);
+    if worse_than_fitted || drifts_away(&baseline_sim[split..], &y[split..], plan.drive.period_samples) {
+        // The fit's criterion covers a few seconds; a Bouc–Wen loop does not always close
+        // (it can ratchet under a drive without half-wave symmetry) and its free run then
+        // runs away after them. Refit over the whole fitted part and keep the better free run.
+        let bounded = OeOptions { max_samples: split, ..opt.clone() };
+        if let Ok(f) = fit::fit_oe(u, y, ts, split, &spec, starts, &bounded) {
+            let sim = f.model.simulate(u, ts)?;
+            if analysis::rms_diff(&sim[split..], &y[split..])
+                < analysis::rms_diff(&baseline_sim[split..], &y[split..])
+            {
+                (baseline, baseline_sim) = (f.model, sim);
+            }
+        }
+    }
     let held_out =
         |sim: &[f64]| -> Vec<f64> { y[split..].iter().zip(&sim[split..]).map(|(a, b)| a - b).collect() };
     let baseline_check = ModelCheck::of(&baseline, &baseline_sim[split..], &y[split..], ts);
@@ -1156,7 +1196,7 @@ fn diagnose_from(
 /// The output's harmonics (µm, phases from sample `split`) that the drive's own harmonics
 /// account for through `model`: its free run on `u` minus its free run on `u` without the
 /// drive's harmonics `k ≥ 2`. Empty when the drive carries none worth it (distortion under
-/// 10⁻⁴).
+/// [`DRIVE_DISTORTION_FLOOR`]).
 fn drive_harmonic_part(
     model: &HostModel,
     u: &[f64],
@@ -1165,7 +1205,7 @@ fn drive_harmonic_part(
     split: usize,
     drive: &Drive,
 ) -> Result<Vec<Tone>, FitError> {
-    if drive.thd < 1e-4 {
+    if drive.thd < DRIVE_DISTORTION_FLOOR {
         return Ok(vec![]);
     }
     let n = analysis::whole_periods(u.len(), drive.freq_hz, ts);
@@ -1178,9 +1218,17 @@ fn drive_harmonic_part(
         }
     }
     let sim_pure = model.simulate(&pure, ts)?;
+    if instability(model.ext.ar, &sim_pure, ts).is_some() {
+        // The model's loop runs away on the cleaned drive: no correction can be measured.
+        return Ok(vec![]);
+    }
     let d: Vec<f64> = sim[split..].iter().zip(&sim_pure[split..]).map(|(a, b)| a - b).collect();
     Ok(analysis::harmonics(&d, drive.freq_hz, ts, MAX_TERM_ORDER as usize))
 }
+
+/// A drive's own harmonic distortion below which it is not taken into account: the
+/// distortion measured on a pure sine is about 10⁻⁴ (the drive frequency is estimated).
+pub const DRIVE_DISTORTION_FLOOR: f64 = 2e-3;
 
 /// "3rd harmonic branch", "drift line".
 fn describe_term(c: &Candidate) -> String {

@@ -14,7 +14,7 @@
 //! | [`sweep`] | the paper's Figs. 10 and 16 on the virtual bimorph |
 //! | [`diagnose`] | what a model gets wrong on a record, the cause, the term that fixes it |
 //! | [`report`], [`plot`] | files, pages and SVG figures |
-//! | `hidden` (feature `fixtures`) | records of the virtual bimorph with a hidden effect, for tests and benches |
+//! | `hidden`, `messy` (feature `fixtures`) | records of the virtual bimorph with a hidden effect, and written as bench records come, for tests and benches |
 
 pub mod analysis;
 pub mod design;
@@ -23,6 +23,8 @@ pub mod experiment;
 pub mod fit;
 #[cfg(feature = "fixtures")]
 pub mod hidden;
+#[cfg(feature = "fixtures")]
+pub mod messy;
 pub mod plot;
 pub mod record;
 pub mod report;

@@ -570,15 +570,27 @@ pub fn steady_window(
         }
         return Ok((Window { drive_on: start, start, end: end2, given: true, why }, drive));
     }
-    let (w, levels, cmp) = blocks(&u[..n]);
-    let (a, b, _) = longest_run(&levels, cmp).ok_or(WindowError::NoSteadyDrive)?;
+    let (mut w, mut levels, cmp) = blocks(&u[..n]);
+    let (mut a, mut b, _) = longest_run(&levels, cmp).ok_or(WindowError::NoSteadyDrive)?;
+    // The drive, from the run's inner blocks (the outer ones may hold part of a step).
+    let inner_of =
+        |a: usize, b: usize, w: usize| if b >= a + 2 { ((a + 1) * w, b * w) } else { (a * w, (b + 1) * w) };
+    let mut inner = inner_of(a, b, w);
+    let mut first = classify(&u[inner.0..inner.1], ts);
+    if let (true, Some(p), Compare::Peaks) = (first.is_periodic(), first.period_samples, cmp) {
+        // Blocks shorter than a period may miss a peak: again with blocks of one period.
+        if (w as f64) < p && (p.ceil() as usize) <= n / 4 {
+            w = p.ceil() as usize;
+            levels = u[..n].chunks_exact(w).map(level).collect();
+            (a, b, _) = longest_run(&levels, cmp).ok_or(WindowError::NoSteadyDrive)?;
+            inner = inner_of(a, b, w);
+            first = classify(&u[inner.0..inner.1], ts);
+        }
+    }
     let (mut on, mut off) = (a * w, (b + 1) * w);
     if b + 1 == levels.len() && cmp == Compare::Spread {
         off = n;
     }
-    // The drive, from the run's inner blocks (the outer ones may hold part of a step).
-    let inner = if b >= a + 2 { ((a + 1) * w, b * w) } else { (on, off) };
-    let first = classify(&u[inner.0..inner.1], ts);
     if let (true, Some(p), Compare::Peaks) = (first.is_periodic(), first.period_samples, cmp) {
         // Edges to within a fraction of a period: one period from there must keep the level.
         let pw = (p.ceil() as usize).max(2);
