@@ -247,9 +247,13 @@ pub fn instability(ar: [f64; 2], sim: &[f64], ts: f64) -> Option<String> {
         ));
     }
     if let Some(k) = sim.iter().position(|v| !v.is_finite() || v.abs() > Y_LIMIT_UM) {
+        let when = if k == 0 {
+            "from its first sample".to_string()
+        } else {
+            format!("{} s after its first sample", k as f64 * ts)
+        };
         return Some(format!(
-            "its free run leaves the physical range (±{Y_LIMIT_UM} µm) {} s into the part simulated",
-            k as f64 * ts
+            "its free run leaves the physical range (±{Y_LIMIT_UM} µm) {when} over the held-out part: it diverges"
         ));
     }
     None
@@ -276,6 +280,25 @@ pub fn drifts_away(sim: &[f64], y: &[f64], period: Option<f64>) -> bool {
 
 /// See [`drifts_away`].
 pub const RUNAWAY_FACTOR: f64 = 3.0;
+
+/// How far (µm, signed) the mean of a signal moves from its first to its last whole period
+/// of `period` samples; `None` with fewer than two periods. Under a periodic drive a model
+/// whose loop closes repeats itself; a baseline is refused when its free run moves by more
+/// than [`RATCHET_REL`] of the output's fundamental and the output does not move with it.
+pub fn ratchet_um(sim: &[f64], period: Option<f64>) -> Option<f64> {
+    let p = period.filter(|p| *p >= 1.0)?;
+    let n = sim.len();
+    if (n as f64) < 2.0 * p {
+        return None;
+    }
+    let pw = p.round() as usize;
+    Some(analysis::mean(&sim[n - pw..]) - analysis::mean(&sim[..pw]))
+}
+
+/// A baseline whose free run's mean moves by more than this fraction of the output's
+/// fundamental amplitude over the held-out part does not close its loop (see
+/// [`DiagnoseError::Ratchets`]).
+pub const RATCHET_REL: f64 = 0.05;
 
 /// Smallest held-out fit (%) of the baseline for a harmonic diagnosis: below it the drive
 /// explains too little of the output.
@@ -595,6 +618,15 @@ pub enum DiagnoseError {
         /// Nyquist frequency (Hz).
         nyquist_hz: f64,
     },
+    /// The fitted baseline's loop does not close under this drive: its free run's mean
+    /// moves from period to period (a Bouc–Wen loop can ratchet under a drive without
+    /// half-wave symmetry), so what it gets wrong says nothing about the actuator.
+    Ratchets {
+        /// How far its mean moves over the held-out part (µm).
+        moved_um: f64,
+        /// The drive's own harmonic distortion (%).
+        thd_pct: f64,
+    },
     /// The fit failed.
     Fit(FitError),
 }
@@ -638,6 +670,12 @@ impl std::fmt::Display for DiagnoseError {
                 f,
                 "the drive ({drive_hz:.1} Hz) is above half the Nyquist frequency ({nyquist_hz:.1} Hz): \
                  no harmonic of it can be seen"
+            ),
+            DiagnoseError::Ratchets { moved_um, thd_pct } => write!(
+                f,
+                "the fitted extended model does not close its loop under this drive: its free run's mean moves by \
+                 {moved_um:.3} µm over the held-out part (the Bouc–Wen loop ratchets; the drive's own distortion is \
+                 {thd_pct:.2} %), so no diagnosis is made on top of it"
             ),
             DiagnoseError::Fit(e) => write!(f, "{e}"),
         }
@@ -951,6 +989,25 @@ fn diagnose_from(
     }
     let held_out =
         |sim: &[f64]| -> Vec<f64> { y[split..].iter().zip(&sim[split..]).map(|(a, b)| a - b).collect() };
+    let period = plan.drive.period_samples;
+    if let (Some(sim_moves), Some(y_moves)) =
+        (ratchet_um(&baseline_sim[split..], period), ratchet_um(&y[split..], period))
+    {
+        // A loop that ratchets to follow a drift of the output is the drift's business.
+        let amp = analysis::harmonics(&y[split..], drive_hz, ts, 1).first().map_or(0.0, |t| t.amp);
+        // Only a drive with distortion of its own (no half-wave symmetry) is known to make
+        // the fitted loop ratchet; a slow settling of the loop after a step is not refused.
+        let distorted = plan.drive.thd >= DRIVE_DISTORTION_FLOOR;
+        if distorted
+            && sim_moves.abs() > RATCHET_REL * amp
+            && (sim_moves - y_moves).abs() > 0.5 * sim_moves.abs()
+        {
+            return Err(DiagnoseError::Ratchets {
+                moved_um: sim_moves.abs(),
+                thd_pct: 100.0 * plan.drive.thd,
+            });
+        }
+    }
     let baseline_check = ModelCheck::of(&baseline, &baseline_sim[split..], &y[split..], ts);
     if baseline_check.unstable.is_some() {
         return Err(DiagnoseError::Fit(FitError::NoStableModel));

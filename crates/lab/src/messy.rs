@@ -282,3 +282,14 @@ impl Messy {
         }
     }
 }
+
+/// A record on which the paper's RLS identifies an extended model whose free run diverges:
+/// the default actuator driven by a 1 V sine at 40 Hz for 15 s (the sweep's frequency where
+/// the RLS model is unstable).
+pub fn unstable_rls_record() -> Result<Record, CaseError> {
+    let s = boucwen_sim::Scenario::default();
+    let ts = s.sampling.ts_s;
+    let u: Vec<f64> = (0..(15.0 / ts) as usize).map(|k| (TAU * 40.0 * k as f64 * ts).sin()).collect();
+    let y = Bimorph::new(&s)?.run(&u)?;
+    Record::new("rls-40hz", 0.0, ts, u, y, None).map_err(CaseError::Record)
+}
