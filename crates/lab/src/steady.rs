@@ -170,6 +170,12 @@ impl Drive {
     }
 }
 
+/// Harmonics of `f_hz` measured: up to [`DRIVE_HARMONICS`], below 0.45 of the sample rate
+/// (a tone at Nyquist has no sine component to fit).
+pub fn harmonic_count(f_hz: f64, ts: f64) -> usize {
+    ((0.45 / ts / f_hz).floor() as usize).clamp(1, DRIVE_HARMONICS)
+}
+
 fn variance(x: &[f64]) -> f64 {
     let m = analysis::mean(x);
     x.iter().map(|v| (v - m) * (v - m)).sum::<f64>() / x.len().max(1) as f64
@@ -195,8 +201,7 @@ pub fn classify(u: &[f64], ts: f64) -> Drive {
     let Some(f_dom) = analysis::estimate_drive(u, ts) else { return none };
     // A sine or a periodic waveform whose dominant line is its fundamental.
     let n = analysis::whole_periods(u.len(), f_dom, ts);
-    let kmax = ((0.5 / ts) / f_dom).ceil() as usize;
-    let harmonics = analysis::harmonics(&u[..n], f_dom, ts, kmax.clamp(1, DRIVE_HARMONICS));
+    let harmonics = analysis::harmonics(&u[..n], f_dom, ts, harmonic_count(f_dom, ts));
     let var_n = variance(&u[..n]).max(1e-300);
     let power = |t: &Tone| t.amp * t.amp / 2.0;
     let fund = harmonics.first().map_or(0.0, power) / var_n;
@@ -693,7 +698,7 @@ fn settling(y: &[f64], ts: f64, drive: &Drive, p: f64) -> usize {
             (0..n).map(|k| avg[(k + pp - half % pp) % pp]).collect()
         }
         _ => {
-            let kmax = (((0.5 / ts) / drive.freq_hz).ceil() as usize).clamp(1, DRIVE_HARMONICS);
+            let kmax = harmonic_count(drive.freq_hz, ts);
             let mean = analysis::mean(tail);
             let h = analysis::harmonics(tail, drive.freq_hz, ts, kmax);
             let mut t = vec![mean; n];
@@ -803,7 +808,7 @@ pub fn check_response(u: &[f64], y: &[f64], ts: f64, drive: &Drive) -> Result<()
     match drive.kind {
         DriveKind::Sine | DriveKind::Periodic => {
             let n = analysis::whole_periods(y.len(), drive.freq_hz, ts);
-            let kmax = (((0.5 / ts) / drive.freq_hz).ceil() as usize).clamp(1, DRIVE_HARMONICS);
+            let kmax = harmonic_count(drive.freq_hz, ts);
             let h = analysis::harmonics(&y[..n], drive.freq_hz, ts, kmax);
             let share = h.iter().map(|t| t.amp * t.amp / 2.0).sum::<f64>() / variance(&y[..n]).max(1e-300);
             if share < MIN_DRIVEN_SHARE {
@@ -874,7 +879,7 @@ pub fn noise_floor(y: &[f64], ts: f64, drive: &Drive) -> (f64, &'static str) {
     match drive.kind {
         DriveKind::Sine | DriveKind::Periodic => {
             let n = analysis::whole_periods(y.len(), drive.freq_hz, ts);
-            let kmax = (((0.5 / ts) / drive.freq_hz).ceil() as usize).clamp(1, DRIVE_HARMONICS);
+            let kmax = harmonic_count(drive.freq_hz, ts);
             let h = analysis::harmonics(&y[..n], drive.freq_hz, ts, kmax);
             let mut rest: Vec<f64> = y[..n].to_vec();
             for t in &h {
