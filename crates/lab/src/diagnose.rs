@@ -240,7 +240,7 @@ pub fn instability(ar: [f64; 2], sim: &[f64], ts: f64) -> Option<String> {
     // Poles of z² − a1 z − a2: the largest modulus.
     let disc = a1 * a1 + 4.0 * a2;
     let radius = if disc >= 0.0 { (a1.abs() + disc.sqrt()) / 2.0 } else { (-a2).sqrt() };
-    if !(radius < 1.0) {
+    if radius.is_nan() || radius >= 1.0 {
         return Some(format!(
             "the structure has a pole of modulus {radius:.6} (a1 = {a1:.6}, a2 = {a2:.6}; stable needs every pole inside \
              the unit circle)"
@@ -1010,7 +1010,7 @@ fn diagnose_from(
     // The drive explains too little: another input drives the output. No harmonic
     // diagnosis on top of it.
     let fit = baseline_check.fit_pct.unwrap_or(f64::NAN);
-    if !(fit >= MIN_FIT_PCT) {
+    if fit.is_nan() || fit < MIN_FIT_PCT {
         let cause = format!(
             "another input or a disturbance drives the output: the baseline explains only {fit:.1} % of the held-out \
              output (fit), less than {MIN_FIT_PCT:.0} %; a second actuator or signal, vibration, or a thermal or \
