@@ -11,6 +11,7 @@ mod cmd_hil;
 mod cmd_identify;
 mod cmd_simulate;
 mod cmd_sweep;
+mod record_args;
 
 #[derive(Parser)]
 #[command(

@@ -47,7 +47,9 @@
 use crate::analysis;
 use crate::design::{self, ReferenceSpec, controller_params};
 use crate::experiment;
-use crate::fit::{self, FitError, HostModel, ModelSpec, OeOptions};
+use crate::fit::{
+    self, Averaging, DelaySearch, FitError, HostModel, LoopSearch, ModelSpec, OeOptions, Samples, StructureSearch,
+};
 use crate::record::Record;
 use boucwen_core::compensator::{HarmonicSpec, PhaseRule, Saturation};
 use boucwen_core::model::{BoucWenParams, EnhancedParams, ExtendedParams, HarmonicBranch, Model};
@@ -626,9 +628,10 @@ pub fn design_from_records(records: &[Record], opts: &DesignOptions) -> Result<D
         Some(i) => {
             let r = &records[i];
             let opt = OeOptions {
-                max_samples: 8000,
-                linear: true,
-                delay: Some(0.0),
+                samples: Samples::First(8000),
+                averaging: Averaging::Off,
+                hysteresis: LoopSearch::Linear,
+                delay: DelaySearch::Fixed(0.0),
                 require_invertible: false,
                 ..OeOptions::default()
             };
@@ -638,10 +641,13 @@ pub fn design_from_records(records: &[Record], opts: &DesignOptions) -> Result<D
         }
         None => None,
     };
+    // The first 4 s of the fitted half, sample by sample: a record from a board starts from
+    // rest, with the excitation's fade-in, and is not in periodic steady state early on.
     let oe = OeOptions {
-        structure,
-        fix_structure: structure.is_some(),
-        delay: Some(0.0),
+        samples: Samples::First(4000),
+        averaging: Averaging::Off,
+        structure: structure.map_or(StructureSearch::Grid, StructureSearch::Fixed),
+        delay: DelaySearch::Fixed(0.0),
         require_invertible: true,
         ..OeOptions::default()
     };

@@ -7,7 +7,8 @@
 //!    [`Thresholds::min_gain`], the baseline carries it ("extended+offset"): a sensor's zero
 //!    is arbitrary, and the model's loop starts from `h = 0` wherever the actuator was. An
 //!    offset is not a finding; the model's name shows it. The fit criterion skips the start-up (a fifth of the half, at most
-//!    [`MAX_SKIP_S`]) and covers at most [`MAX_WINDOW_S`].
+//!    [`MAX_SKIP_S`]) and, under a periodic drive, fits the average of the half's remaining
+//!    periods once a trend is separated ([`crate::fit::Averaging::PeriodsAndTrend`]).
 //! 2. **What it gets wrong.** The held-out residual `r = y − ŷ` is split ([`decompose`]) into
 //!    the part periodic with the drive (harmonics `k·f`, measured over whole periods), a
 //!    slow trend (a cubic in time, its mean included, fitted to what the harmonics leave),
@@ -53,7 +54,9 @@
 //! gain the 50 % the batch asks for (see the README for the shares).
 
 use crate::analysis::{self, Tone};
-use crate::fit::{self, FitError, HostModel, ModelSpec, OeOptions};
+use crate::fit::{self, Averaging, FitData, FitError, HostModel, ModelSpec, OeOptions};
+use crate::record::Y_LIMIT_UM;
+use crate::steady::{self, Drive, DriveKind, NoResponse, Window, WindowError};
 use rayon::prelude::*;
 use std::f64::consts::TAU;
 
@@ -66,6 +69,9 @@ pub enum Kind {
     EvenHarmonic,
     /// A slow trend not locked to the drive.
     Drift,
+    /// The drive explains less than [`MIN_FIT_PCT`] of the output: another input or a
+    /// disturbance drives it.
+    OtherInput,
 }
 
 impl Kind {
@@ -75,6 +81,7 @@ impl Kind {
             Kind::OddHarmonic => "odd_harmonic",
             Kind::EvenHarmonic => "even_harmonic",
             Kind::Drift => "drift",
+            Kind::OtherInput => "other_input",
         }
     }
 }
@@ -180,7 +187,101 @@ pub struct Diagnosis {
     pub model_residual: Residual,
     /// Output fundamental amplitude over the held-out part (µm).
     pub output_amplitude_um: f64,
+    /// The part of the record analysed; the free runs cover `window.drive_on..window.end`
+    /// and `split` counts from `window.drive_on`.
+    pub window: Window,
+    /// The drive found in the window.
+    pub drive: Drive,
+    /// Time of the record's first sample (s).
+    pub t0: f64,
+    /// Whole drive periods fitted and held out.
+    pub periods: (usize, usize),
+    /// The baseline's held-out fit and stability.
+    pub baseline_check: ModelCheck,
+    /// The extended model's held-out fit and stability.
+    pub model_check: ModelCheck,
+    /// The output's noise floor over the held-out part (µm) and how it was measured.
+    pub noise_um: (f64, &'static str),
+    /// What the record says about the structure's resonance.
+    pub resonance_note: String,
 }
+
+/// A model's measure on the held-out part: its fit and whether its free run stays stable.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ModelCheck {
+    /// `100·(1 − ‖y − ŷ‖/‖y − mean(y)‖)` on the held-out part; `None` if not stable.
+    pub fit_pct: Option<f64>,
+    /// Why the model is not stable (`None`: stable).
+    pub unstable: Option<String>,
+}
+
+impl ModelCheck {
+    /// Checks a free run `sim` against the held-out output `y` (both over the held-out part)
+    /// and the model's structure: a pole on or outside the unit circle, a non-finite value or
+    /// one beyond [`Y_LIMIT_UM`] make it unstable.
+    pub fn of(model: &HostModel, sim: &[f64], y: &[f64], ts: f64) -> ModelCheck {
+        let unstable = instability(model.ext.ar, sim, ts);
+        let fit_pct = unstable.is_none().then(|| fit_pct(y, sim));
+        ModelCheck { fit_pct, unstable }
+    }
+}
+
+/// `100·(1 − ‖y − ŷ‖/‖y − mean(y)‖)`: 100 % a perfect model, 0 % no better than the mean,
+/// negative worse.
+pub fn fit_pct(y: &[f64], yhat: &[f64]) -> f64 {
+    let m = analysis::mean(y);
+    let den = y.iter().map(|v| (v - m) * (v - m)).sum::<f64>().sqrt();
+    let num = y.iter().zip(yhat).map(|(a, b)| (a - b) * (a - b)).sum::<f64>().sqrt();
+    if den > 0.0 { 100.0 * (1.0 - num / den) } else { f64::NAN }
+}
+
+/// Why a model with AR part `ar` and free run `sim` is not stable, if it is not.
+pub fn instability(ar: [f64; 2], sim: &[f64], ts: f64) -> Option<String> {
+    let (a1, a2) = (ar[0], ar[1]);
+    // Poles of z² − a1 z − a2: the largest modulus.
+    let disc = a1 * a1 + 4.0 * a2;
+    let radius = if disc >= 0.0 { (a1.abs() + disc.sqrt()) / 2.0 } else { (-a2).sqrt() };
+    if radius.is_nan() || radius >= 1.0 {
+        return Some(format!(
+            "the structure has a pole of modulus {radius:.6} (a1 = {a1:.6}, a2 = {a2:.6}; stable needs every pole inside \
+             the unit circle)"
+        ));
+    }
+    if let Some(k) = sim.iter().position(|v| !v.is_finite() || v.abs() > Y_LIMIT_UM) {
+        let when = if k == 0 {
+            "from its first sample".to_string()
+        } else {
+            format!("{} s after its first sample", k as f64 * ts)
+        };
+        return Some(format!(
+            "its free run leaves the physical range (±{Y_LIMIT_UM} µm) {when} over the held-out part: it diverges"
+        ));
+    }
+    None
+}
+
+/// How far (µm, signed) the mean of a signal moves from its first to its last whole period
+/// of `period` samples; `None` with fewer than two periods. Under a periodic drive a model
+/// whose loop closes repeats itself; a baseline is refused when its free run moves by more
+/// than [`RATCHET_REL`] of the output's fundamental and the output does not move with it.
+pub fn ratchet_um(sim: &[f64], period: Option<f64>) -> Option<f64> {
+    let p = period.filter(|p| *p >= 1.0)?;
+    let n = sim.len();
+    if (n as f64) < 2.0 * p {
+        return None;
+    }
+    let pw = p.round() as usize;
+    Some(analysis::mean(&sim[n - pw..]) - analysis::mean(&sim[..pw]))
+}
+
+/// A baseline whose free run's mean moves by more than this fraction of the output's
+/// fundamental amplitude over the held-out part does not close its loop (see
+/// [`DiagnoseError::Ratchets`]).
+pub const RATCHET_REL: f64 = 0.05;
+
+/// Smallest held-out fit (%) of the baseline for a harmonic diagnosis: below it the drive
+/// explains too little of the output.
+pub const MIN_FIT_PCT: f64 = 50.0;
 
 impl Diagnosis {
     /// `100·(1 - after/before)`.
@@ -194,11 +295,38 @@ impl Diagnosis {
 }
 
 impl Diagnosis {
-    /// The JSON object of `boucwen diagnose --json`: `drive_hz`, `baseline {model, rms_um}`,
-    /// `findings [{kind, order (harmonics only), freq_hz, residual_share, cause, kept,
-    /// term_rms_um}]` (most important first; kept terms before structure no term removed),
-    /// `extended {model, rms_um}`, `gain_pct`, the residual decomposition and every term tried
-    /// (`trials [{round, kind, order, freq_hz, rms_um, term_rms_um}]`).
+    /// The samples of `x` (the whole record) the diagnosis covers: its free runs and
+    /// `split` count from the first of them.
+    pub fn analysed<'a>(&self, x: &'a [f64]) -> &'a [f64] {
+        &x[self.window.drive_on..self.window.end]
+    }
+
+    /// The window analysed, `[start, end]` in the record's time (s).
+    pub fn window_s(&self) -> [f64; 2] {
+        self.window.seconds(self.t0, self.ts)
+    }
+
+    /// The trials that lowered the held-out RMS by at least the threshold but whose term was
+    /// not kept, each candidate once (its last such trial), with the reason.
+    pub fn not_kept(&self) -> Vec<&Trial> {
+        let key = |t: &Trial| (t.candidate.kind, t.candidate.order);
+        let kept: Vec<_> = self.trials.iter().filter(|t| t.kept).map(key).collect();
+        let mut out: Vec<&Trial> = vec![];
+        for t in self.trials.iter().filter(|t| t.reason.is_some() && !kept.contains(&key(t))) {
+            out.retain(|o| key(o) != key(t));
+            out.push(t);
+        }
+        out
+    }
+
+    /// The JSON object of `boucwen diagnose --json` (see the README for every field):
+    /// `drive_hz`, `window_s`, `window_why`, `drive`, `periods`, `noise_um`, `baseline
+    /// {model, rms_um, fit_pct, stable}`, `findings [{kind, order (harmonics only), freq_hz,
+    /// residual_share, cause, kept, term_rms_um}]` (most important first; kept terms before
+    /// structure no term removed), `extended {…}`, `gain_pct`, `not_kept [{kind, order,
+    /// freq_hz, round, gain_pct, reason}]`, the residual decomposition, every term tried
+    /// (`trials [{round, kind, order, freq_hz, rms_um, term_rms_um, gain_pct, kept, reason}]`)
+    /// and `resonance_hz` (null unless the record supports it) with `resonance_note`.
     pub fn json(&self) -> serde_json::Value {
         use serde_json::json;
         let findings: Vec<serde_json::Value> = self
@@ -219,13 +347,65 @@ impl Diagnosis {
                 o
             })
             .collect();
+        let model = |m: &HostModel, rms: f64, c: &ModelCheck| {
+            let mut o = json!({
+                "model": m.name(),
+                "rms_um": if c.unstable.is_none() { json!(rms) } else { json!(null) },
+                "fit_pct": c.fit_pct,
+                "stable": c.unstable.is_none(),
+            });
+            if let Some(why) = &c.unstable {
+                o["unstable_reason"] = json!(why);
+            }
+            o
+        };
+        let trial = |t: &Trial| {
+            let mut o = json!({
+                "round": t.round,
+                "kind": t.candidate.kind.as_str(),
+                "freq_hz": t.candidate.freq_hz,
+                "rms_um": t.rms_um,
+                "term_rms_um": t.term_rms_um,
+                "gain_pct": t.gain_pct,
+                "kept": t.kept,
+                "reason": t.reason,
+            });
+            if let Some(n) = t.candidate.order {
+                o["order"] = json!(n);
+            }
+            o
+        };
         let r = &self.residual;
         json!({
             "drive_hz": self.drive_hz,
-            "baseline": {"model": self.baseline.name(), "rms_um": self.baseline_rms_um},
+            "window_s": self.window_s(),
+            "window_why": self.window.why,
+            "drive": {
+                "kind": self.drive.kind.as_str(),
+                "freq_hz": self.drive.freq_hz,
+                "thd_pct": 100.0 * self.drive.thd,
+                "harmonics_rel": (1..=MAX_TERM_ORDER as usize).map(|k| self.drive.harmonic_rel(k)).collect::<Vec<_>>(),
+            },
+            "periods": {"fitted": self.periods.0, "held_out": self.periods.1},
+            "noise_um": self.noise_um.0,
+            "noise_method": self.noise_um.1,
+            "baseline": model(&self.baseline, self.baseline_rms_um, &self.baseline_check),
             "findings": findings,
-            "extended": {"model": self.model.name(), "rms_um": self.model_rms_um},
+            "extended": model(&self.model, self.model_rms_um, &self.model_check),
             "gain_pct": self.gain_pct(),
+            "not_kept": self.not_kept().into_iter().map(|t| {
+                let mut o = json!({
+                    "kind": t.candidate.kind.as_str(),
+                    "freq_hz": t.candidate.freq_hz,
+                    "round": t.round,
+                    "gain_pct": t.gain_pct,
+                    "reason": t.reason,
+                });
+                if let Some(n) = t.candidate.order {
+                    o["order"] = json!(n);
+                }
+                o
+            }).collect::<Vec<_>>(),
             "residual": {
                 "rms_um": r.rms_um,
                 "periodic_rms_um": r.periodic_rms_um(),
@@ -233,48 +413,65 @@ impl Diagnosis {
                 "noise_rms_um": r.noise_rms_um,
                 "harmonics_um": r.harmonics.iter().map(|h| h.amp).collect::<Vec<_>>(),
             },
-            "trials": self.trials.iter().map(|t| {
-                let mut o = json!({
-                    "round": t.round,
-                    "kind": t.candidate.kind.as_str(),
-                    "freq_hz": t.candidate.freq_hz,
-                    "rms_um": t.rms_um,
-                    "term_rms_um": t.term_rms_um,
-                });
-                if let Some(n) = t.candidate.order {
-                    o["order"] = json!(n);
-                }
-                o
-            }).collect::<Vec<_>>(),
+            "trials": self.trials.iter().map(trial).collect::<Vec<_>>(),
             "resonance_hz": self.resonance_hz,
-            "fit_samples": self.split,
+            "resonance_note": self.resonance_note,
+            "fit_samples": self.split - self.plan_skip(),
             "held_out_samples": self.baseline_sim.len() - self.split,
         })
     }
 
-    /// The terminal report: the baseline and what it gets wrong, the findings with their
-    /// evidence, and the extended model's gain.
+    /// First sample of the fitted part, counted from `window.drive_on`.
+    fn plan_skip(&self) -> usize {
+        self.window.start - self.window.drive_on
+    }
+
+    /// The terminal report: the window and the drive, the baseline and what it gets wrong,
+    /// the findings with their evidence, the terms that gained but were not kept, and the
+    /// extended model's gain.
     pub fn summary(&self, source: &str) -> String {
         use std::fmt::Write;
         let mut s = String::new();
         let n = self.baseline_sim.len();
         let r = &self.residual;
+        let [w0, w1] = self.window_s();
+        let fitted_s = (self.split - self.plan_skip()) as f64 * self.ts;
+        let _ = writeln!(s, "{source}: drive {}, sampled every {} s", self.drive.describe(), self.ts);
+        let _ = writeln!(s, "window {} to {} s: {}", fmt_s(w0), fmt_s(w1), self.window.why);
         let _ = writeln!(
             s,
-            "{source}: drive {:.3} Hz, {n} samples at {} s; fitted on the first {} s, tested on the last {} s",
-            self.drive_hz,
-            self.ts,
-            fmt_s(self.split as f64 * self.ts),
+            "fitted on {} periods ({} s), tested on the {} periods after them ({} s)",
+            self.periods.0,
+            fmt_s(fitted_s),
+            self.periods.1,
             fmt_s((n - self.split) as f64 * self.ts),
         );
+        let fit = |c: &ModelCheck| match (&c.unstable, c.fit_pct) {
+            (Some(why), _) => format!("not stable: {why}"),
+            (None, Some(f)) => format!("fit {f:.1} %"),
+            (None, None) => "fit not measured".into(),
+        };
         let _ = writeln!(
             s,
-            "output fundamental {:.3} µm; baseline {} (free run): held-out RMS {:.4} µm{}",
+            "output fundamental {:.3} µm, noise floor {:.4} µm; baseline {} (free run): held-out RMS {:.4} µm, {}",
             self.output_amplitude_um,
+            self.noise_um.0,
             self.baseline.name(),
             self.baseline_rms_um,
-            self.resonance_hz.map_or(String::new(), |f| format!(", structure resonance {f:.1} Hz")),
+            fit(&self.baseline_check),
         );
+        match self.resonance_hz {
+            Some(f) => {
+                let _ = writeln!(s, "structure resonance {f:.1} Hz ({})", self.resonance_note);
+            }
+            None => {
+                let _ = writeln!(s, "{}", self.resonance_note);
+            }
+        }
+        if self.findings.first().is_some_and(|f| f.kind == Kind::OtherInput) {
+            let _ = writeln!(s, "\nfinding: {}", self.findings[0].cause);
+            return s;
+        }
         let _ = writeln!(s, "\nwhat the baseline gets wrong (held-out residual, RMS {:.4} µm):", r.rms_um);
         let p = (r.rms_um * r.rms_um).max(1e-300);
         let pct = |x: f64| 100.0 * x * x / p;
@@ -300,11 +497,14 @@ impl Diagnosis {
                 100.0 * h.amp * h.amp / 2.0 / p
             );
         }
+        let not_kept = self.not_kept();
         if self.findings.is_empty() {
             let _ = writeln!(
                 s,
-                "\nfindings: none; no structure in the residual is worth a term (noise {:.4} µm of {:.4} µm)",
-                r.noise_rms_um, r.rms_um
+                "\nfindings: none; no term was kept (residual noise {:.4} µm of {:.4} µm){}",
+                r.noise_rms_um,
+                r.rms_um,
+                if not_kept.is_empty() { "" } else { "; the terms below gained but were not kept" }
             );
         } else {
             let _ = writeln!(s, "\nfindings (most important first):");
@@ -312,11 +512,30 @@ impl Diagnosis {
                 let _ = writeln!(s, "  {}. {}", i + 1, f.cause);
             }
         }
+        if !not_kept.is_empty() {
+            let _ = writeln!(
+                s,
+                "\nterms that lowered the held-out RMS by {:.0}% or more but were not kept:",
+                100.0 * Thresholds::default().min_gain
+            );
+            for t in not_kept {
+                let _ = writeln!(
+                    s,
+                    "  - {} (round {}): {:.0}% lower, to {:.4} µm; {}",
+                    describe_term(&t.candidate),
+                    t.round,
+                    t.gain_pct,
+                    t.rms_um,
+                    t.reason.as_deref().unwrap_or("")
+                );
+            }
+        }
         let _ = writeln!(
             s,
-            "\nextended model: {} (free run): held-out RMS {:.4} µm, {:.4} µm before: {:.1}% lower{}",
+            "\nextended model: {} (free run): held-out RMS {:.4} µm, {}; {:.4} µm before: {:.1}% lower{}",
             self.model.name(),
             self.model_rms_um,
+            fit(&self.model_check),
             self.baseline_rms_um,
             self.gain_pct(),
             if self.findings.iter().any(|f| f.kept) { "" } else { " (no term kept: the baseline stays)" }
@@ -337,18 +556,39 @@ impl Residual {
     }
 }
 
-/// Why a diagnosis could not be made.
+/// Why a diagnosis could not be made. Each is one sentence naming the rule applied and the
+/// numbers.
 #[derive(Debug)]
 pub enum DiagnoseError {
     /// The input has no oscillating component to call a drive.
-    NoDrive,
-    /// The drive is too slow for the record (fewer than [`MIN_PERIODS`] periods in the
-    /// held-out half).
+    NoDrive {
+        /// Standard deviation of `u` (V).
+        std_v: f64,
+    },
+    /// The drive is not a sine (the other kinds are not diagnosed yet).
+    NotSine {
+        /// The drive, described.
+        drive: String,
+    },
+    /// No steady window, or `--window` outside the record.
+    Window(WindowError),
+    /// The output does not respond.
+    NoResponse(NoResponse),
+    /// Fewer than [`MIN_PERIODS`] whole periods of the drive in the steady window.
     TooFewPeriods {
-        /// Drive frequency found (Hz).
+        /// Drive frequency (Hz).
         drive_hz: f64,
-        /// Record length (s).
-        seconds: f64,
+        /// Whole periods in the window.
+        periods: usize,
+        /// The window (s).
+        window_s: [f64; 2],
+    },
+    /// Fewer than [`MIN_SAMPLES`] samples in the steady window.
+    TooFewSamples {
+        /// Samples in the window.
+        samples: usize,
+        /// The window (s).
+        window_s: [f64; 2],
     },
     /// The drive's harmonics cannot be analysed: its second harmonic is at or above Nyquist.
     DriveTooFast {
@@ -357,33 +597,64 @@ pub enum DiagnoseError {
         /// Nyquist frequency (Hz).
         nyquist_hz: f64,
     },
+    /// The fitted baseline's loop does not close under this drive: its free run's mean
+    /// moves from period to period (a Bouc–Wen loop can ratchet under a drive without
+    /// half-wave symmetry), so what it gets wrong says nothing about the actuator.
+    Ratchets {
+        /// How far its mean moves over the held-out part (µm).
+        moved_um: f64,
+        /// The drive's own harmonic distortion (%).
+        thd_pct: f64,
+    },
     /// The fit failed.
     Fit(FitError),
 }
 
-/// Fewest samples of a record to diagnose or identify: the fit and the held-out test each
-/// need some hundreds.
+/// Fewest samples of the steady window to diagnose or identify: the fit and the held-out
+/// test each need some hundreds.
 pub const MIN_SAMPLES: usize = 400;
 
-/// Fewest drive periods the held-out half must hold.
-pub const MIN_PERIODS: f64 = 4.0;
+/// Fewest whole drive periods in the steady window: half of them (rounded up) are fitted,
+/// the rest held out.
+pub const MIN_PERIODS: usize = 4;
 
 impl std::fmt::Display for DiagnoseError {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let span = |w: &[f64; 2]| format!("{:.3}–{:.3} s", w[0], w[1]);
         match self {
-            DiagnoseError::NoDrive => {
-                write!(f, "the input u has no oscillating component (no drive to analyse)")
-            }
-            DiagnoseError::TooFewPeriods { drive_hz, seconds } => write!(
+            DiagnoseError::NoDrive { std_v } => write!(
                 f,
-                "the drive ({drive_hz:.3} Hz) completes fewer than {} periods in the held-out half of the \
-                 {seconds:.2} s record; record longer",
-                2.0 * MIN_PERIODS
+                "the input u does not vary (standard deviation {std_v:.2e} V): there is no drive to analyse"
+            ),
+            DiagnoseError::NotSine { drive } => write!(
+                f,
+                "the drive is {drive}; diagnose analyses sine drives only for now (boucwen identify fits a model to \
+                 any drive)"
+            ),
+            DiagnoseError::Window(e) => write!(f, "{e}"),
+            DiagnoseError::NoResponse(e) => write!(f, "{e}"),
+            DiagnoseError::TooFewPeriods { drive_hz, periods, window_s } => write!(
+                f,
+                "the steady window {} holds {periods} whole periods of the {drive_hz:.3} Hz drive; diagnose needs at \
+                 least {MIN_PERIODS} (half fitted, half held out): record more periods",
+                span(window_s)
+            ),
+            DiagnoseError::TooFewSamples { samples, window_s } => write!(
+                f,
+                "the steady window {} holds {samples} samples; diagnose needs at least {MIN_SAMPLES}: record longer \
+                 or sample faster",
+                span(window_s)
             ),
             DiagnoseError::DriveTooFast { drive_hz, nyquist_hz } => write!(
                 f,
                 "the drive ({drive_hz:.1} Hz) is above half the Nyquist frequency ({nyquist_hz:.1} Hz): \
                  no harmonic of it can be seen"
+            ),
+            DiagnoseError::Ratchets { moved_um, thd_pct } => write!(
+                f,
+                "the fitted extended model does not close its loop under this drive: its free run's mean moves by \
+                 {moved_um:.3} µm over the held-out part (the Bouc–Wen loop ratchets; the drive's own distortion is \
+                 {thd_pct:.2} %), so no diagnosis is made on top of it"
             ),
             DiagnoseError::Fit(e) => write!(f, "{e}"),
         }
@@ -423,9 +694,16 @@ pub fn decompose(r: &[f64], f: f64, ts: f64) -> Residual {
     // Remove the harmonics, then fit a cubic trend to what is left.
     let mut rest: Vec<f64> = r.to_vec();
     for h in &harmonics {
+        // amp·sin(wk + phase) by a rotating phasor, re-anchored every 1024 samples.
         let w = TAU * h.freq_hz * ts;
+        let (dw_s, dw_c) = w.sin_cos();
+        let (mut s, mut c) = (0.0f64, 1.0f64);
         for (k, v) in rest.iter_mut().enumerate() {
-            *v -= h.amp * (w * k as f64 + h.phase).sin();
+            if k % 1024 == 0 {
+                (s, c) = (w * k as f64 + h.phase).sin_cos();
+            }
+            *v -= h.amp * s;
+            (s, c) = (s * dw_c + c * dw_s, c * dw_c - s * dw_s);
         }
     }
     let (trend, slope) = poly_fit(&rest, ts, 3);
@@ -494,7 +772,7 @@ pub struct Candidate {
 }
 
 /// One term tried in one round of the forward selection.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq)]
 pub struct Trial {
     /// Round (0: added to the baseline).
     pub round: usize,
@@ -504,6 +782,12 @@ pub struct Trial {
     pub rms_um: f64,
     /// What the term carries in that model (µm, see [`Finding::term_rms_um`]).
     pub term_rms_um: f64,
+    /// How much it lowered the held-out RMS of the round's model (%).
+    pub gain_pct: f64,
+    /// Whether this trial's term was kept.
+    pub kept: bool,
+    /// Why a trial that gained at least [`Thresholds::min_gain`] was not kept.
+    pub reason: Option<String>,
 }
 
 /// A drift line qualifies when it carries this many times the RMS of the baseline residual's
@@ -520,33 +804,123 @@ pub const TERM_STARTS: usize = 5;
 /// Highest harmonic order tried as a term.
 pub const MAX_TERM_ORDER: u32 = 9;
 
-/// The fit settings of the diagnosis: the baseline is the best of three Levenberg–Marquardt
-/// starts; the loop need not be invertible (the model explains a record, it is not used to
-/// compensate).
+/// The fit settings of the diagnosis: the loop need not be invertible (the model explains a
+/// record, it is not used to compensate).
 ///
 /// The criterion covers the whole first half but its first fifth (at most
 /// [`MAX_SKIP_S`]): the record starts from rest (or from wherever the actuator was), and the
 /// start-up transient of a lightly damped resonance is not what the diagnosis is about.
+/// Under a periodic drive the fit separates a trend and averages the periods of that part
+/// first ([`Averaging::PeriodsAndTrend`]), so its cost does not grow with the record; the
+/// trend is the drift term's to explain.
 pub fn fit_options(split: usize, ts: f64) -> OeOptions {
     let skip = (split / 5).min((MAX_SKIP_S / ts) as usize).max(OeOptions::default().skip);
     OeOptions {
-        max_iter: 15,
         require_invertible: false,
-        max_samples: split.min(skip + (MAX_WINDOW_S / ts) as usize),
         skip,
+        averaging: Averaging::PeriodsAndTrend,
         ..OeOptions::default()
     }
 }
 
 /// Longest start-up left out of the fit criterion (s).
 pub const MAX_SKIP_S: f64 = 1.0;
-/// Longest fit criterion window (s): enough periods of any drive the diagnosis accepts
-/// (at least 12 at 5 Hz), short enough to keep a diagnosis fast.
-pub const MAX_WINDOW_S: f64 = 2.5;
 
-/// Diagnoses a record: `u` (V), `y` (µm), sample interval `ts` (s).
+/// Diagnoses a record: `u` (V), `y` (µm), sample interval `ts` (s), its first sample at
+/// `t = 0`, in its steady window.
 pub fn diagnose(u: &[f64], y: &[f64], ts: f64, th: &Thresholds) -> Result<Diagnosis, DiagnoseError> {
-    diagnose_from(u, y, ts, th, &[], 0)
+    diagnose_record(u, y, ts, 0.0, None, th)
+}
+
+/// Where a diagnosis is made (the front end for measured records): the window, the drive,
+/// the split into fitted and held-out periods, and the fit's criterion.
+#[derive(Clone, Debug)]
+pub struct Plan {
+    /// The window analysed.
+    pub window: Window,
+    /// The drive in it.
+    pub drive: Drive,
+    /// First held-out sample, counted from `window.drive_on`.
+    pub split: usize,
+    /// Whole periods fitted and held out.
+    pub periods: (usize, usize),
+    /// The fit's settings (criterion from `skip`, counted from `window.drive_on`).
+    pub opt: OeOptions,
+    /// Time of the record's first sample (s).
+    pub t0: f64,
+}
+
+/// Plans the diagnosis of a record (see [`Plan`]): finds the steady window (or takes
+/// `given`, in samples), the drive, checks that the output responds, that the drive is a
+/// sine, and that the window holds [`MIN_PERIODS`] whole periods and [`MIN_SAMPLES`]
+/// samples. Every refusal is one sentence with the rule and the numbers.
+pub fn plan(
+    u: &[f64],
+    y: &[f64],
+    ts: f64,
+    t0: f64,
+    given: Option<(usize, usize)>,
+) -> Result<Plan, DiagnoseError> {
+    let (window, drive) = steady::steady_window(u, y, ts, given).map_err(DiagnoseError::Window)?;
+    let window_s = window.seconds(t0, ts);
+    if drive.kind == DriveKind::None {
+        return Err(DiagnoseError::NoDrive { std_v: drive.std_v });
+    }
+    let (start, end) = (window.start, window.end);
+    steady::check_response(&u[start..end], &y[start..end], ts, &drive).map_err(DiagnoseError::NoResponse)?;
+    if drive.kind != DriveKind::Sine {
+        return Err(DiagnoseError::NotSine { drive: drive.describe() });
+    }
+    let drive_hz = drive.freq_hz;
+    if 2.0 * drive_hz >= 0.5 / ts {
+        return Err(DiagnoseError::DriveTooFast { drive_hz, nyquist_hz: 0.5 / ts });
+    }
+    let samples = end - start;
+    let p = drive.period_samples.unwrap_or(1.0 / (drive_hz * ts));
+    // The window ends on a whole period rounded to a sample.
+    let periods = ((samples as f64 + 0.5) / p).floor() as usize;
+    if periods < MIN_PERIODS {
+        return Err(DiagnoseError::TooFewPeriods { drive_hz, periods, window_s });
+    }
+    if samples < MIN_SAMPLES {
+        return Err(DiagnoseError::TooFewSamples { samples, window_s });
+    }
+    let p_fit = periods.div_ceil(2);
+    let split = start + (p_fit as f64 * p).round() as usize - window.drive_on;
+    let start_rel = start - window.drive_on;
+    let mut opt = OeOptions { lm_starts: TERM_STARTS, ..fit_options(split, ts) };
+    opt.skip = start_rel.max(opt.skip.min(split.saturating_sub(FIT_MIN_SAMPLES)));
+    Ok(Plan { window, drive, split, periods: (p_fit, periods - p_fit), opt, t0 })
+}
+
+/// Fewest samples in the fit's criterion.
+pub const FIT_MIN_SAMPLES: usize = 200;
+
+/// Diagnoses a record whose first sample is at `t0` (s), in its steady window or in `given`
+/// (samples): [`plan`], then [`diagnose_planned`].
+pub fn diagnose_record(
+    u: &[f64],
+    y: &[f64],
+    ts: f64,
+    t0: f64,
+    given: Option<(usize, usize)>,
+    th: &Thresholds,
+) -> Result<Diagnosis, DiagnoseError> {
+    let n = u.len().min(y.len());
+    let plan = plan(&u[..n], &y[..n], ts, t0, given)?;
+    diagnose_planned(&u[..n], &y[..n], ts, &plan, th)
+}
+
+/// Diagnoses a record as planned.
+pub fn diagnose_planned(
+    u: &[f64],
+    y: &[f64],
+    ts: f64,
+    plan: &Plan,
+    th: &Thresholds,
+) -> Result<Diagnosis, DiagnoseError> {
+    let w = &plan.window;
+    diagnose_from(&u[w.drive_on..w.end], &y[w.drive_on..w.end], ts, plan, th, &[], 0)
 }
 
 /// Most times the baseline is refitted from a better structure a term's fit found.
@@ -555,7 +929,8 @@ pub const MAX_BASELINE_REFITS: usize = 2;
 /// lowers the baseline's held-out RMS by at least this fraction.
 pub const BASELINE_REFIT_GAIN: f64 = 0.05;
 
-/// [`diagnose`] with extra start models for the baseline; `depth` counts refits.
+/// [`diagnose_planned`] on the window's samples (`u`, `y` from `drive_on`) with extra start
+/// models for the baseline; `depth` counts refits.
 ///
 /// A term's fit searches structures again and may find one the baseline's fit missed (a
 /// local minimum). The first round's winner is then checked: with its term removed and the
@@ -566,27 +941,48 @@ fn diagnose_from(
     u: &[f64],
     y: &[f64],
     ts: f64,
+    plan: &Plan,
     th: &Thresholds,
     starts: &[HostModel],
     depth: usize,
 ) -> Result<Diagnosis, DiagnoseError> {
-    let n = u.len().min(y.len());
-    let (u, y) = (&u[..n], &y[..n]);
-    let drive_hz = analysis::estimate_drive(u, ts).ok_or(DiagnoseError::NoDrive)?;
-    let split = n / 2;
-    if (n - split) as f64 * ts * drive_hz < MIN_PERIODS {
-        return Err(DiagnoseError::TooFewPeriods { drive_hz, seconds: n as f64 * ts });
-    }
-    if 2.0 * drive_hz >= 0.5 / ts {
-        return Err(DiagnoseError::DriveTooFast { drive_hz, nyquist_hz: 0.5 / ts });
-    }
-    let opt = OeOptions { lm_starts: TERM_STARTS, ..fit_options(split, ts) };
+    let drive_hz = plan.drive.freq_hz;
+    let split = plan.split;
+    let opt = plan.opt.clone();
     // The baseline carries an output offset: a sensor's zero is arbitrary.
     let spec = ModelSpec { drift_degree: Some(0), ..ModelSpec::extended(drive_hz) };
-    let baseline = fit::fit_oe(u, y, ts, split, &spec, starts, &opt)?.model;
+    // The fitted half's average periods, computed once for all fits (with a trend for the
+    // drift term's).
+    let data = FitData::new(u, y, ts, split);
+    data.prepare(&spec, &opt);
+    data.prepare(&ModelSpec { drift_degree: Some(1), ..spec.clone() }, &opt);
+    let baseline = fit::fit_oe_on(&data, &spec, starts, &opt)?.model;
     let baseline_sim = baseline.simulate(u, ts)?;
     let held_out =
         |sim: &[f64]| -> Vec<f64> { y[split..].iter().zip(&sim[split..]).map(|(a, b)| a - b).collect() };
+    let period = plan.drive.period_samples;
+    if let (Some(sim_moves), Some(y_moves)) =
+        (ratchet_um(&baseline_sim[split..], period), ratchet_um(&y[split..], period))
+    {
+        // A loop that ratchets to follow a drift of the output is the drift's business.
+        let amp = analysis::harmonics(&y[split..], drive_hz, ts, 1).first().map_or(0.0, |t| t.amp);
+        // Only a drive with distortion of its own (no half-wave symmetry) is known to make
+        // the fitted loop ratchet; a slow settling of the loop after a step is not refused.
+        let distorted = plan.drive.thd >= DRIVE_DISTORTION_FLOOR;
+        if distorted
+            && sim_moves.abs() > RATCHET_REL * amp
+            && (sim_moves - y_moves).abs() > 0.5 * sim_moves.abs()
+        {
+            return Err(DiagnoseError::Ratchets {
+                moved_um: sim_moves.abs(),
+                thd_pct: 100.0 * plan.drive.thd,
+            });
+        }
+    }
+    let baseline_check = ModelCheck::of(&baseline, &baseline_sim[split..], &y[split..], ts);
+    if baseline_check.unstable.is_some() {
+        return Err(DiagnoseError::Fit(FitError::NoStableModel));
+    }
     let resid = held_out(&baseline_sim);
     let baseline_rms_um = analysis::rms(&resid);
     let residual = decompose(&resid, drive_hz, ts);
@@ -595,6 +991,74 @@ fn diagnose_from(
     let res_hz = resonance_hz(baseline.ext.ar, ts);
     let out_rms = output_amplitude_um / std::f64::consts::SQRT_2;
     let out_harmonics = analysis::harmonics(&y[split..], drive_hz, ts, MAX_TERM_ORDER as usize);
+    let noise_um = steady::noise_floor(&y[split..], ts, &plan.drive);
+    let base = Diagnosis {
+        drive_hz,
+        ts,
+        split,
+        baseline: baseline.clone(),
+        baseline_rms_um,
+        baseline_sim: baseline_sim.clone(),
+        residual: residual.clone(),
+        resonance_hz: None,
+        findings: vec![],
+        trials: vec![],
+        model: baseline.clone(),
+        model_rms_um: baseline_rms_um,
+        model_sim: baseline_sim.clone(),
+        model_residual: residual.clone(),
+        output_amplitude_um,
+        window: plan.window.clone(),
+        drive: plan.drive.clone(),
+        t0: plan.t0,
+        periods: plan.periods,
+        baseline_check: baseline_check.clone(),
+        model_check: baseline_check.clone(),
+        noise_um,
+        resonance_note: String::new(),
+    };
+    // The drive explains too little: another input drives the output. No harmonic
+    // diagnosis on top of it.
+    let fit = baseline_check.fit_pct.unwrap_or(f64::NAN);
+    if fit.is_nan() || fit < MIN_FIT_PCT {
+        let cause = format!(
+            "another input or a disturbance drives the output: the baseline explains only {fit:.1} % of the held-out \
+             output (fit), less than {MIN_FIT_PCT:.0} %; a second actuator or signal, vibration, or a thermal or \
+             sensor effect the record does not carry. No harmonic diagnosis is made on top of it"
+        );
+        let finding = Finding {
+            kind: Kind::OtherInput,
+            order: None,
+            freq_hz: 0.0,
+            residual_share: 1.0,
+            amplitude_um: residual.rms_um,
+            output_rel: 0.0,
+            cause,
+            kept: false,
+            rms_with_term_um: f64::NAN,
+            term_rms_um: residual.rms_um,
+        };
+        let note =
+            "the structure's resonance is not reported: the model explains too little of the output".into();
+        return Ok(Diagnosis { findings: vec![finding], resonance_note: note, ..base });
+    }
+    // What the drive's own harmonics account for in the output: the baseline's response to
+    // them (its free run with the drive's harmonics minus without).
+    let drive_part = drive_harmonic_part(&baseline, u, &baseline_sim, ts, split, &plan.drive)?;
+    let evidence: Vec<Tone> = out_harmonics
+        .iter()
+        .enumerate()
+        .map(|(i, t)| match drive_part.get(i) {
+            Some(d) if i > 0 => {
+                let (a, b) = (
+                    t.amp * t.phase.cos() - d.amp * d.phase.cos(),
+                    t.amp * t.phase.sin() - d.amp * d.phase.sin(),
+                );
+                Tone { freq_hz: t.freq_hz, amp: (a * a + b * b).sqrt(), phase: b.atan2(a) }
+            }
+            _ => *t,
+        })
+        .collect();
 
     // What a term must carry: `min_term_rel` of the output, or for a drift, which does not
     // scale with the drive, DRIFT_NOISE_FACTOR times the residual's noise if that is less.
@@ -603,7 +1067,7 @@ fn diagnose_from(
         if c.kind == Kind::Drift { t.min(DRIFT_NOISE_FACTOR * residual.noise_rms_um) } else { t }
     };
     // Forward selection of terms.
-    let mut remaining = candidates(&residual, &out_harmonics, drive_hz, ts, th.min_candidate_rel * out_rms);
+    let mut remaining = candidates(&residual, &evidence, drive_hz, ts, th.min_candidate_rel * out_rms);
     let mut model = baseline.clone();
     let mut model_rms = baseline_rms_um;
     let mut kept: Vec<(Candidate, f64, f64)> = vec![];
@@ -616,42 +1080,82 @@ fn diagnose_from(
             .enumerate()
             .filter_map(|(i, c)| {
                 let spec = with_term(&model, c, ts)?;
-                let mut o = OeOptions { lm_starts: TERM_STARTS, ..fit_options(split, ts) };
-                if c.kind == Kind::Drift {
-                    // A trend extrapolates from the longest base: the whole fitted half.
-                    o.max_samples = split;
+                let m = fit::fit_oe_on(&data, &spec, std::slice::from_ref(&model), &opt).ok()?.model;
+                let sim = m.simulate(u, ts).ok()?;
+                if instability(m.ext.ar, &sim, ts).is_some() {
+                    return None;
                 }
-                let m = fit::fit_oe(u, y, ts, split, &spec, std::slice::from_ref(&model), &o).ok()?.model;
-                let rms = fit::free_run_rms(&m, u, y, ts, split).ok()?;
+                let rms = analysis::rms_diff(&sim[split..], &y[split..]);
                 let term = term_rms(&m, c, u, ts, split).ok()?;
                 (rms.is_finite() && term.is_finite()).then_some((i, m, rms, term))
             })
             .collect();
+        let first_trial = trials.len();
         trials.extend(tried.iter().map(|(i, _, rms, term)| Trial {
             round,
             candidate: remaining[*i],
             rms_um: *rms,
             term_rms_um: *term,
+            gain_pct: 100.0 * (1.0 - rms / model_rms.max(1e-300)),
+            kept: false,
+            reason: None,
         }));
         // Of the terms that would be kept, the one with the most evidence in the record.
-        let Some((i, m, rms, term)) = tried
-            .into_iter()
-            .filter(|t| t.2 <= model_rms * (1.0 - th.min_gain) && t.3 >= min_term(&remaining[t.0]))
-            .max_by(|a, b| remaining[a.0].evidence_um.total_cmp(&remaining[b.0].evidence_um))
-        else {
+        let gains = |t: &(usize, HostModel, f64, f64)| t.2 <= model_rms * (1.0 - th.min_gain);
+        let winner = tried
+            .iter()
+            .enumerate()
+            .filter(|(_, t)| gains(t) && t.3 >= min_term(&remaining[t.0]))
+            .max_by(|a, b| remaining[a.1.0].evidence_um.total_cmp(&remaining[b.1.0].evidence_um))
+            .map(|(pos, _)| pos);
+        // Why each term that gained enough is not kept this round.
+        for (pos, t) in tried.iter().enumerate() {
+            if !gains(t) || Some(pos) == winner {
+                continue;
+            }
+            let c = &remaining[t.0];
+            let need = min_term(c);
+            let reason = if t.3 < need {
+                format!(
+                    "its term carries only {:.4} µm in the model, less than the {need:.4} µm a term must carry ({:.0} % \
+                     of the output's fundamental RMS{})",
+                    t.3,
+                    100.0 * th.min_term_rel,
+                    if c.kind == Kind::Drift {
+                        format!(", or {DRIFT_NOISE_FACTOR} times the residual's noise")
+                    } else {
+                        String::new()
+                    }
+                )
+            } else if let Some(w) = winner {
+                let wc = &remaining[tried[w].0];
+                format!(
+                    "the {} had more evidence in the record ({:.4} µm against {:.4} µm) and was kept in round {round}",
+                    describe_term(wc),
+                    wc.evidence_um,
+                    c.evidence_um
+                )
+            } else {
+                continue;
+            };
+            trials[first_trial + pos].reason = Some(reason);
+        }
+        let Some(pos) = winner else {
             break;
         };
+        let (i, m, rms, term) = tried.into_iter().nth(pos).expect("the winner is one of the trials");
         if round == 0 && depth < MAX_BASELINE_REFITS {
             let stripped = without(&m, &remaining[i]);
-            let refit = fit::fit_oe(u, y, ts, split, &spec, &[stripped], &opt).map(|f| f.model);
+            let refit = fit::fit_oe_on(&data, &spec, &[stripped], &opt).map(|f| f.model);
             if let Ok(b) = refit {
                 if fit::free_run_rms(&b, u, y, ts, split)
                     .is_ok_and(|r| r < baseline_rms_um * (1.0 - BASELINE_REFIT_GAIN))
                 {
-                    return diagnose_from(u, y, ts, th, &[b], depth + 1);
+                    return diagnose_from(u, y, ts, plan, th, &[b], depth + 1);
                 }
             }
         }
+        trials[first_trial + pos].kept = true;
         kept.push((remaining.remove(i), rms, term));
         model = m;
         model_rms = rms;
@@ -673,7 +1177,18 @@ fn diagnose_from(
             freq_hz: c.freq_hz,
             residual_share: explained.clamp(0.0, 1.0),
             amplitude_um: c.amp,
-            cause: explain(&c, step, &out_harmonics, output_amplitude_um, &[final_res, res_hz], &residual),
+            cause: explain(
+                &c,
+                step,
+                &out_harmonics,
+                output_amplitude_um,
+                &[final_res, res_hz],
+                &residual,
+                (
+                    plan.drive.harmonic_rel(c.order.unwrap_or(0) as usize),
+                    drive_part.get(c.order.unwrap_or(1) as usize - 1).map_or(0.0, |t| t.amp),
+                ),
+            ),
             rms_with_term_um: rms,
             term_rms_um: term,
             output_rel: out_harmonics
@@ -684,23 +1199,116 @@ fn diagnose_from(
     }
     // Kept terms were chosen by their evidence, most first.
     findings.extend(unexplained(&model_residual, &kept, &out_harmonics, output_amplitude_um, th));
+    let model_check = ModelCheck::of(&model, &model_sim[split..], &y[split..], ts);
+    let (resonance_hz, resonance_note) =
+        resonance_support(res_hz, drive_hz, &out_harmonics, output_amplitude_um, &residual);
     Ok(Diagnosis {
-        drive_hz,
-        ts,
-        split,
-        baseline,
-        baseline_rms_um,
-        baseline_sim,
-        residual,
-        resonance_hz: res_hz,
+        resonance_hz,
+        resonance_note,
         findings,
         trials,
         model,
         model_rms_um: model_rms,
         model_sim,
         model_residual,
-        output_amplitude_um,
+        model_check,
+        ..base
     })
+}
+
+/// The output's harmonics (µm, phases from sample `split`) that the drive's own harmonics
+/// account for through `model`: its free run on `u` minus its free run on `u` without the
+/// drive's harmonics `k ≥ 2`. Empty when the drive carries none worth it (distortion under
+/// [`DRIVE_DISTORTION_FLOOR`]).
+fn drive_harmonic_part(
+    model: &HostModel,
+    u: &[f64],
+    sim: &[f64],
+    ts: f64,
+    split: usize,
+    drive: &Drive,
+) -> Result<Vec<Tone>, FitError> {
+    if drive.thd < DRIVE_DISTORTION_FLOOR {
+        return Ok(vec![]);
+    }
+    let n = analysis::whole_periods(u.len(), drive.freq_hz, ts);
+    let h = analysis::harmonics(&u[..n], drive.freq_hz, ts, MAX_TERM_ORDER as usize);
+    let mut pure = u.to_vec();
+    for t in h.iter().skip(1) {
+        let w = TAU * t.freq_hz * ts;
+        for (k, v) in pure.iter_mut().enumerate() {
+            *v -= t.amp * (w * k as f64 + t.phase).sin();
+        }
+    }
+    let sim_pure = model.simulate(&pure, ts)?;
+    if instability(model.ext.ar, &sim_pure, ts).is_some() {
+        // The model's loop runs away on the cleaned drive: no correction can be measured.
+        return Ok(vec![]);
+    }
+    let d: Vec<f64> = sim[split..].iter().zip(&sim_pure[split..]).map(|(a, b)| a - b).collect();
+    Ok(analysis::harmonics(&d, drive.freq_hz, ts, MAX_TERM_ORDER as usize))
+}
+
+/// A drive's own harmonic distortion below which it is not taken into account: the
+/// distortion measured on a pure sine is about 10⁻⁴ (the drive frequency is estimated).
+pub const DRIVE_DISTORTION_FLOOR: f64 = 2e-3;
+
+/// "3rd harmonic branch", "drift line".
+fn describe_term(c: &Candidate) -> String {
+    match (c.kind, c.order) {
+        (Kind::Drift, _) => "drift line".into(),
+        (_, Some(n)) => format!("{} harmonic branch", ordinal(n)),
+        _ => "term".into(),
+    }
+}
+
+/// The structure's resonance if the record supports it: a line the record excites (the
+/// drive or an output harmonic of at least 1 % of the fundamental) within
+/// [`NEAR_RESONANCE`] of it, or a residual harmonic there holding [`UNEXPLAINED_SHARE`] of
+/// the residual power. Returns the resonance to report and a sentence saying why or why not.
+fn resonance_support(
+    res_hz: Option<f64>,
+    drive_hz: f64,
+    out: &[Tone],
+    out_amp: f64,
+    residual: &Residual,
+) -> (Option<f64>, String) {
+    let Some(r) = res_hz else {
+        return (None, "the fitted structure has no resonance (its poles are real)".into());
+    };
+    let near = |f: f64| (r - f).abs() <= NEAR_RESONANCE * r.max(f);
+    if let Some((k, t)) =
+        out.iter().enumerate().find(|(k, t)| (*k == 0 || t.amp >= 0.01 * out_amp) && near(t.freq_hz))
+    {
+        let what = if k == 0 {
+            "the drive".to_string()
+        } else {
+            format!("the output's {} harmonic", ordinal(k as u32 + 1))
+        };
+        return (Some(r), format!("excited: {what} at {:.1} Hz lies near it", t.freq_hz));
+    }
+    let power = (residual.rms_um * residual.rms_um).max(1e-300);
+    if let Some(t) = residual
+        .harmonics
+        .iter()
+        .find(|t| near(t.freq_hz) && t.amp * t.amp / 2.0 >= UNEXPLAINED_SHARE * power)
+    {
+        return (Some(r), format!("shown in the residual: its harmonic at {:.1} Hz lies near it", t.freq_hz));
+    }
+    let top = out
+        .iter()
+        .enumerate()
+        .filter(|(k, t)| *k == 0 || t.amp >= 0.01 * out_amp)
+        .map(|(_, t)| t.freq_hz)
+        .fold(drive_hz, f64::max);
+    (
+        None,
+        format!(
+            "the structure's resonance is not identifiable from this record: the fit puts one at {r:.0} Hz, but \
+             nothing the record excites lies near it (the drive at {drive_hz:.1} Hz and output harmonics up to \
+             {top:.1} Hz)"
+        ),
+    )
 }
 
 /// The structure the extended model still misses: a harmonic `2..=`[`MAX_TERM_ORDER`] (not
@@ -887,6 +1495,7 @@ fn explain(
     out_amp: f64,
     resonances: &[Option<f64>],
     residual: &Residual,
+    (drive_rel, drive_part_um): (f64, f64),
 ) -> String {
     let share = 100.0 * c.share;
     let f = c.freq_hz;
@@ -910,6 +1519,13 @@ fn explain(
                 c.amp
             ));
         }
+        if drive_rel >= 1e-3 {
+            s.push_str(&format!(
+                "; the drive itself carries {:.2}% at this harmonic, which accounts for {drive_part_um:.3} µm of it \
+                 through the model",
+                100.0 * drive_rel
+            ));
+        }
         s
     };
     match c.kind {
@@ -919,7 +1535,7 @@ fn explain(
             match near {
                 Some(r) => s.push_str(&format!(
                     "; the fitted structure has a resonance near {r:.0} Hz, which amplifies the {} harmonic of \
-                     a nonlinearity the Bouc–Wen loop does not hold (e.g. stiffening of the bending)",
+                     a nonlinearity the Bouc–Wen loop does not hold (e.g. a stiffening of the actuator or its mechanism)",
                     ordinal(n)
                 )),
                 None => s.push_str("; a nonlinearity beyond the Bouc–Wen loop"),
@@ -930,7 +1546,7 @@ fn explain(
             let n = c.order.unwrap_or(0);
             let mut s = format!(
                 "even harmonic: {}; an even harmonic needs an asymmetry the model's loop lacks (an asymmetric \
-                 bimorph's stiffness, an off-centre operating point)",
+                 stiffness, an off-centre operating point)",
                 harmonic(n)
             );
             if let Some(r) = near {
@@ -946,6 +1562,7 @@ fn explain(
             residual.trend_slope_um_per_s,
             step.describe("a drift line")
         ),
+        Kind::OtherInput => "another input drives the output".into(),
     }
 }
 

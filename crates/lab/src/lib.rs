@@ -7,6 +7,7 @@
 //! |---|---|
 //! | [`record`] | measured records on disk (CSV), [`record::Replay`] as a plant |
 //! | [`analysis`] | spectra, harmonics, whole periods |
+//! | [`steady`] | the drive's kind and the steady window of a record |
 //! | [`fit`] | identification: the paper's RLS and output error |
 //! | [`board_design`] | the board's compensator from measured records, and the design file |
 //! | [`design`] | an identified model (or a plant) to the board's parameters; the cancellation rule and the probe of the response at `n·f`, shared by `boucwen hil` and the sweep |
@@ -15,7 +16,7 @@
 //! | [`sweep`] | the paper's Figs. 10 and 16 on the virtual bimorph |
 //! | [`diagnose`] | what a model gets wrong on a record, the cause, the term that fixes it |
 //! | [`report`], [`plot`] | files, pages and SVG figures |
-//! | `hidden` (feature `fixtures`) | records of the virtual bimorph with a hidden effect, for tests and benches |
+//! | `hidden`, `messy` (feature `fixtures`) | records of the virtual bimorph with a hidden effect, and written as bench records come, for tests and benches |
 
 pub mod analysis;
 pub mod board_design;
@@ -25,8 +26,11 @@ pub mod experiment;
 pub mod fit;
 #[cfg(feature = "fixtures")]
 pub mod hidden;
+#[cfg(feature = "fixtures")]
+pub mod messy;
 pub mod plot;
 pub mod record;
 pub mod report;
 pub mod simulate;
+pub mod steady;
 pub mod sweep;

@@ -1,0 +1,745 @@
+//! Reading records as they come from a bench: [`import`] and [`import_text`].
+//!
+//! Every command that reads a record reads it here ([`Record::read`] and
+//! [`Record::parse`] are `import` with the default [`ImportOptions`]). What is accepted is in
+//! the module docs of [`crate::record`]; what the caller can say about a file that does
+//! not say it itself is in [`ImportOptions`] (the CLI's `--columns`, `--sample-rate`,
+//! `--u-unit`, `--y-unit`).
+
+use super::error::{excerpt, excerpt_n};
+use super::{At, Col, ErrorKind, MIN_SAMPLES, Record, RecordError, TS_MAX_S, TS_MIN_S, UNIFORM_TOLERANCE};
+use std::fmt;
+use std::path::Path;
+use std::str::FromStr;
+
+/// Smallest span of the output (µm) taken as a displacement: below it, the values are
+/// likely in another unit (metres, millimetres) or the sensor shows nothing.
+pub const MIN_SPAN_UM: f64 = 1e-3;
+/// Largest span of the output (µm) taken as an actuator's displacement: 10 mm.
+pub const MAX_SPAN_UM: f64 = 1e4;
+
+/// The unit of the input column `u` (`--u-unit`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum VoltUnit {
+    /// Volts (the default).
+    V,
+    /// Millivolts.
+    MilliV,
+    /// Kilovolts.
+    KiloV,
+}
+
+impl VoltUnit {
+    /// Volts per unit.
+    pub fn volts(self) -> f64 {
+        match self {
+            VoltUnit::V => 1.0,
+            VoltUnit::MilliV => 1e-3,
+            VoltUnit::KiloV => 1e3,
+        }
+    }
+    /// The name as the flag takes it.
+    pub fn name(self) -> &'static str {
+        match self {
+            VoltUnit::V => "V",
+            VoltUnit::MilliV => "mV",
+            VoltUnit::KiloV => "kV",
+        }
+    }
+}
+
+/// The unit of the output and reference columns `y`, `d` (`--y-unit`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum LengthUnit {
+    /// Metres.
+    M,
+    /// Millimetres.
+    Mm,
+    /// Micrometres (the default).
+    Um,
+    /// Nanometres.
+    Nm,
+}
+
+impl LengthUnit {
+    /// Micrometres per unit.
+    pub fn micrometres(self) -> f64 {
+        match self {
+            LengthUnit::M => 1e6,
+            LengthUnit::Mm => 1e3,
+            LengthUnit::Um => 1.0,
+            LengthUnit::Nm => 1e-3,
+        }
+    }
+    /// The name as the flag takes it.
+    pub fn name(self) -> &'static str {
+        match self {
+            LengthUnit::M => "m",
+            LengthUnit::Mm => "mm",
+            LengthUnit::Um => "um",
+            LengthUnit::Nm => "nm",
+        }
+    }
+    const ALL: [LengthUnit; 4] = [LengthUnit::M, LengthUnit::Mm, LengthUnit::Um, LengthUnit::Nm];
+}
+
+/// A flag's value that cannot be read (`--columns`, `--u-unit`, `--y-unit`).
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct OptionError {
+    /// The flag.
+    pub flag: &'static str,
+    /// The value given (a short excerpt).
+    pub value: String,
+    /// What was expected.
+    pub expected: &'static str,
+}
+
+impl fmt::Display for OptionError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{} {:?}: expected {}", self.flag, self.value, self.expected)
+    }
+}
+
+impl std::error::Error for OptionError {}
+
+impl FromStr for VoltUnit {
+    type Err = OptionError;
+    fn from_str(s: &str) -> Result<Self, OptionError> {
+        match s.trim().to_ascii_lowercase().as_str() {
+            "v" => Ok(VoltUnit::V),
+            "mv" => Ok(VoltUnit::MilliV),
+            "kv" => Ok(VoltUnit::KiloV),
+            _ => Err(OptionError { flag: "--u-unit", value: excerpt(s), expected: "V, mV or kV" }),
+        }
+    }
+}
+
+impl FromStr for LengthUnit {
+    type Err = OptionError;
+    fn from_str(s: &str) -> Result<Self, OptionError> {
+        match s.trim().to_lowercase().as_str() {
+            "m" => Ok(LengthUnit::M),
+            "mm" => Ok(LengthUnit::Mm),
+            "um" | "µm" | "μm" => Ok(LengthUnit::Um),
+            "nm" => Ok(LengthUnit::Nm),
+            _ => Err(OptionError { flag: "--y-unit", value: excerpt(s), expected: "m, mm, um or nm" }),
+        }
+    }
+}
+
+/// A column as the user names it: by its header name (case-insensitive) or by its
+/// position, counting from 1.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum ColumnRef {
+    /// A header name.
+    Name(String),
+    /// A position, from 1.
+    Index(usize),
+}
+
+impl fmt::Display for ColumnRef {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            ColumnRef::Name(n) => write!(f, "{n}"),
+            ColumnRef::Index(i) => write!(f, "{i}"),
+        }
+    }
+}
+
+/// Which column holds which signal (`--columns t=NAME|N,u=NAME|N,y=NAME|N[,d=NAME|N]`).
+/// A role left out is looked for by its usual names (see the module docs of
+/// [`crate::record`]); columns no role names are ignored.
+///
+/// ```
+/// use boucwen_lab::record::{ColumnMap, ColumnRef};
+/// let m: ColumnMap = "u=Voltage,y=3".parse()?;
+/// assert_eq!(m.u, Some(ColumnRef::Name("Voltage".into())));
+/// assert_eq!(m.y, Some(ColumnRef::Index(3)));
+/// assert!("u=0".parse::<ColumnMap>().is_err());
+/// # Ok::<(), boucwen_lab::record::OptionError>(())
+/// ```
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct ColumnMap {
+    /// Time (s).
+    pub t: Option<ColumnRef>,
+    /// Input (V, or `--u-unit`).
+    pub u: Option<ColumnRef>,
+    /// Output (µm, or `--y-unit`).
+    pub y: Option<ColumnRef>,
+    /// Reference (the output's unit).
+    pub d: Option<ColumnRef>,
+}
+
+impl ColumnMap {
+    fn get(&self, col: Col) -> Option<&ColumnRef> {
+        match col {
+            Col::T => self.t.as_ref(),
+            Col::U => self.u.as_ref(),
+            Col::Y => self.y.as_ref(),
+            Col::D => self.d.as_ref(),
+        }
+    }
+}
+
+impl FromStr for ColumnMap {
+    type Err = OptionError;
+    fn from_str(s: &str) -> Result<Self, OptionError> {
+        let bad = |expected| OptionError { flag: "--columns", value: excerpt(s), expected };
+        let mut m = ColumnMap::default();
+        for part in s.split(',') {
+            let Some((role, col)) = part.split_once('=') else {
+                return Err(bad("ROLE=NAME or ROLE=N, comma-separated (e.g. t=time,u=2,y=disp)"));
+            };
+            let (role, col) = (role.trim().to_ascii_lowercase(), col.trim());
+            if col.is_empty() {
+                return Err(bad("a column name or a position after each '='"));
+            }
+            let r = match col.parse::<usize>() {
+                Ok(0) => return Err(bad("positions counting from 1")),
+                Ok(i) => ColumnRef::Index(i),
+                Err(_) => ColumnRef::Name(col.to_string()),
+            };
+            let slot = match role.as_str() {
+                "t" => &mut m.t,
+                "u" => &mut m.u,
+                "y" => &mut m.y,
+                "d" => &mut m.d,
+                _ => return Err(bad("roles t, u, y and d")),
+            };
+            if slot.replace(r).is_some() {
+                return Err(bad("each role once"));
+            }
+        }
+        Ok(m)
+    }
+}
+
+/// What the caller knows about a file that the file does not say.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct ImportOptions {
+    /// Which column is which (`None`: found by the header's names).
+    pub columns: Option<ColumnMap>,
+    /// The sample rate (Hz) of a record without a time column.
+    pub sample_rate_hz: Option<f64>,
+    /// The unit of `u` (`None`: the header's, else V).
+    pub u_unit: Option<VoltUnit>,
+    /// The unit of `y` and `d` (`None`: the header's, else µm).
+    pub y_unit: Option<LengthUnit>,
+}
+
+/// How fields are separated.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Separator {
+    /// `,`
+    Comma,
+    /// A tab.
+    Tab,
+    /// `;`
+    Semicolon,
+    /// Runs of spaces (and tabs).
+    Whitespace,
+}
+
+impl Separator {
+    /// A name for messages and JSON.
+    pub fn name(self) -> &'static str {
+        match self {
+            Separator::Comma => "comma",
+            Separator::Tab => "tab",
+            Separator::Semicolon => "semicolon",
+            Separator::Whitespace => "whitespace",
+        }
+    }
+}
+
+/// Where the sample times came from.
+#[derive(Clone, Debug, PartialEq)]
+pub enum TimeSource {
+    /// A column of the file (its name or position).
+    Column(String),
+    /// `--sample-rate` (Hz), the record starting at `t = 0`.
+    SampleRate(f64),
+}
+
+/// How a file was read: for the user to check, and for the JSON.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ImportInfo {
+    /// The separator found.
+    pub separator: Separator,
+    /// Whether the file had a header row.
+    pub header: bool,
+    /// Each signal read and the column it came from (its header name, or its position).
+    pub columns: Vec<(&'static str, String)>,
+    /// The unit `u` was read in.
+    pub u_unit: VoltUnit,
+    /// The unit `y` (and `d`) was read in.
+    pub y_unit: LengthUnit,
+    /// Where the times came from.
+    pub time: TimeSource,
+}
+
+impl ImportInfo {
+    /// One line: "comma-separated with a header; t = time, u = Voltage (mV), y = disp (mm)".
+    pub fn describe(&self) -> String {
+        let cols: Vec<String> = self
+            .columns
+            .iter()
+            .map(|(role, from)| {
+                let unit = match *role {
+                    "u" if self.u_unit != VoltUnit::V => format!(" in {}", self.u_unit.name()),
+                    "y" | "d" if self.y_unit != LengthUnit::Um => format!(" in {}", self.y_unit.name()),
+                    _ => String::new(),
+                };
+                format!("{role} = {from}{unit}")
+            })
+            .collect();
+        let time = match &self.time {
+            TimeSource::Column(_) => String::new(),
+            TimeSource::SampleRate(hz) => format!("; times from --sample-rate {hz} Hz"),
+        };
+        format!(
+            "{}-separated, {}; {}{time}",
+            self.separator.name(),
+            if self.header { "with a header" } else { "no header" },
+            cols.join(", ")
+        )
+    }
+}
+
+/// A record and how it was read.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Imported {
+    /// The record (t in s, u in V, y and d in µm).
+    pub record: Record,
+    /// How it was read.
+    pub info: ImportInfo,
+}
+
+/// Reads a record file as it comes (see the module docs of [`crate::record`]).
+pub fn import(path: impl AsRef<Path>, opts: &ImportOptions) -> Result<Imported, RecordError> {
+    let path = path.as_ref();
+    let source = path.display().to_string();
+    let bytes = std::fs::read(path).map_err(|e| RecordError::new(&source, None, ErrorKind::Io(e)))?;
+    let text = std::str::from_utf8(&bytes).map_err(|e| {
+        let line = 1 + bytes[..e.valid_up_to()].iter().filter(|&&b| b == b'\n').count();
+        RecordError::new(&source, Some(At::Line(line)), ErrorKind::NotUtf8)
+    })?;
+    import_text(text, &source, opts)
+}
+
+impl Record {
+    /// Reads a record file with the default [`ImportOptions`] (see the module docs).
+    pub fn read(path: impl AsRef<Path>) -> Result<Self, RecordError> {
+        import(path, &ImportOptions::default()).map(|i| i.record)
+    }
+
+    /// Parses record text with the default [`ImportOptions`]; `source` names it in errors
+    /// (usually the file name).
+    pub fn parse(text: &str, source: &str) -> Result<Self, RecordError> {
+        import_text(text, source, &ImportOptions::default()).map(|i| i.record)
+    }
+}
+
+/// Splits a line into its fields (trimmed).
+fn fields(line: &str, sep: Separator) -> Vec<&str> {
+    match sep {
+        Separator::Comma => line.split(',').map(str::trim).collect(),
+        Separator::Tab => line.split('\t').map(str::trim).collect(),
+        Separator::Semicolon => line.split(';').map(str::trim).collect(),
+        Separator::Whitespace => line.split_whitespace().collect(),
+    }
+}
+
+fn is_comment(line: &str) -> bool {
+    line.starts_with('#') || line.starts_with('%')
+}
+
+/// The role a header name stands for, and a unit it states (`disp_mm`, `Voltage (V)`,
+/// `time [ms]`): (role, volts-or-micrometres-or-seconds per unit).
+fn recognise(name: &str) -> (Option<Col>, Option<f64>) {
+    let lower = name.trim().to_lowercase();
+    let (base, unit) = split_unit(&lower);
+    let role = match base {
+        "t" | "time" | "times" | "timestamp" | "sec" | "seconds" => Some(Col::T),
+        "u" | "v" | "volt" | "volts" | "voltage" | "input" | "drive" | "command" | "cmd" | "vin"
+        | "excitation" => Some(Col::U),
+        "y" | "disp" | "displacement" | "position" | "pos" | "deflection" | "output" | "out" => Some(Col::Y),
+        "d" | "ref" | "reference" | "target" | "setpoint" | "desired" => Some(Col::D),
+        _ => None,
+    };
+    let scale = match (role, unit) {
+        (Some(Col::T), Some(u)) => match u {
+            "s" => Some(1.0),
+            "ms" => Some(1e-3),
+            "us" | "µs" | "μs" => Some(1e-6),
+            _ => None,
+        },
+        (Some(Col::U), Some(u)) => u.parse::<VoltUnit>().ok().map(VoltUnit::volts),
+        (Some(Col::Y | Col::D), Some(u)) => u.parse::<LengthUnit>().ok().map(LengthUnit::micrometres),
+        _ => None,
+    };
+    (role, scale)
+}
+
+/// `"disp (mm)"` → `("disp", Some("mm"))`, `"time_s"` → `("time", Some("s"))`, `"y"` → `("y", None)`.
+fn split_unit(name: &str) -> (&str, Option<&str>) {
+    const UNITS: [&str; 14] =
+        ["s", "ms", "us", "µs", "μs", "v", "mv", "kv", "m", "mm", "um", "µm", "μm", "nm"];
+    if let Some(open) = name.rfind(['(', '[']) {
+        if name.ends_with([')', ']']) && open + 1 < name.len() - 1 {
+            let unit = name[open + 1..name.len() - 1].trim();
+            return (name[..open].trim_end_matches([' ', '_', '/']), Some(unit));
+        }
+    }
+    if let Some(cut) = name.rfind(['_', ' ', '/']) {
+        let unit = &name[cut + 1..];
+        if UNITS.contains(&unit) && cut > 0 {
+            return (name[..cut].trim_end(), Some(unit));
+        }
+    }
+    (name, None)
+}
+
+/// Most columns a message lists.
+const LISTED_COLUMNS: usize = 8;
+
+/// The columns found, for messages: `time, Voltage, disp` or `1, 2, 3`; at most
+/// [`LISTED_COLUMNS`] of them, then how many there are.
+fn found_list(names: Option<&[String]>, count: usize) -> String {
+    let mut list: Vec<String> = match names {
+        Some(names) => names
+            .iter()
+            .take(LISTED_COLUMNS)
+            .enumerate()
+            .map(|(i, n)| if n.is_empty() { format!("{} (unnamed)", i + 1) } else { excerpt_n(n, 16) })
+            .collect(),
+        None => (1..=count.min(LISTED_COLUMNS)).map(|i| i.to_string()).collect(),
+    };
+    if count > LISTED_COLUMNS {
+        list.push(format!("… {count} in all"));
+    }
+    list.join(", ")
+}
+
+/// The unit that brings an output span (µm, as read) between [`MIN_SPAN_UM`] and
+/// [`MAX_SPAN_UM`], nearest the middle of that range on a log scale, if one does.
+fn likely_unit(span_as_read: f64, read_in: LengthUnit) -> Option<LengthUnit> {
+    let raw = span_as_read / read_in.micrometres();
+    let mid = (MIN_SPAN_UM * MAX_SPAN_UM).sqrt().ln();
+    LengthUnit::ALL
+        .into_iter()
+        .filter(|&u| u != read_in)
+        .map(|u| (u, raw * u.micrometres()))
+        .filter(|&(_, s)| (MIN_SPAN_UM..=MAX_SPAN_UM).contains(&s))
+        .min_by(|a, b| (a.1.ln() - mid).abs().total_cmp(&(b.1.ln() - mid).abs()))
+        .map(|(u, _)| u)
+}
+
+/// Parses record text as it comes; `source` names it in errors.
+///
+/// ```
+/// use boucwen_lab::record::{ImportOptions, import_text};
+/// // No header, whitespace-separated, no time column, the output in metres.
+/// let text = "0.0  1.0e-6\n0.5  3.0e-6\n-0.5 -1.0e-6\n";
+/// let opts = ImportOptions {
+///     columns: Some("u=1,y=2".parse()?),
+///     sample_rate_hz: Some(1000.0),
+///     y_unit: Some("m".parse()?),
+///     ..ImportOptions::default()
+/// };
+/// let r = import_text(text, "bench.txt", &opts)?.record;
+/// assert_eq!(r.y, [1.0, 3.0, -1.0]);
+/// assert_eq!(r.ts, 1e-3);
+/// # Ok::<(), Box<dyn std::error::Error>>(())
+/// ```
+pub fn import_text(text: &str, source: &str, opts: &ImportOptions) -> Result<Imported, RecordError> {
+    let err = |line: usize, kind| RecordError::new(source, Some(At::Line(line)), kind);
+    let whole = |kind| RecordError::new(source, None, kind);
+    let text = text.strip_prefix('\u{feff}').unwrap_or(text);
+    let mut lines = text
+        .split('\n')
+        .enumerate()
+        .map(|(i, l)| (i + 1, l.trim()))
+        .filter(|(_, l)| !l.is_empty() && !is_comment(l))
+        .peekable();
+
+    // The first line: separator and header.
+    let Some(&(first_line, first)) = lines.peek() else {
+        return Err(whole(ErrorKind::Empty));
+    };
+    let sep = if first.contains('\t') {
+        Separator::Tab
+    } else if first.contains(',') {
+        Separator::Comma
+    } else if first.contains(';') {
+        Separator::Semicolon
+    } else {
+        Separator::Whitespace
+    };
+    let first_fields = fields(first, sep);
+    let header = first_fields.iter().any(|f| !f.is_empty() && f.parse::<f64>().is_err());
+    let names: Option<Vec<String>> = header.then(|| first_fields.iter().map(|s| s.to_string()).collect());
+    if header {
+        lines.next();
+    }
+    let width = first_fields.len();
+    let found = || found_list(names.as_deref(), width);
+
+    // Which column is which, and the units the header states.
+    let mut slot: [Option<usize>; 4] = [None; 4];
+    let mut scale_from_header: [Option<f64>; 4] = [None; 4];
+    let roles = [Col::T, Col::U, Col::Y, Col::D];
+    let recognised: Vec<(Option<Col>, Option<f64>)> =
+        names.as_ref().map_or_else(Vec::new, |n| n.iter().map(|s| recognise(s)).collect());
+    let given = opts.columns.clone().unwrap_or_default();
+    for (r, &col) in roles.iter().enumerate() {
+        let Some(want) = given.get(col) else { continue };
+        let idx = match want {
+            ColumnRef::Index(i) if *i <= width => i - 1,
+            ColumnRef::Index(_) => {
+                return Err(err(
+                    first_line,
+                    ErrorKind::ColumnNotFound { role: col.name(), given: want.to_string(), found: found() },
+                ));
+            }
+            ColumnRef::Name(name) => {
+                let lname = name.to_lowercase();
+                let matches: Vec<usize> = names
+                    .iter()
+                    .flatten()
+                    .enumerate()
+                    .filter(|(_, n)| n.to_lowercase() == lname)
+                    .map(|(i, _)| i)
+                    .collect();
+                match matches.as_slice() {
+                    [i] => *i,
+                    [] => {
+                        return Err(err(
+                            first_line,
+                            ErrorKind::ColumnNotFound {
+                                role: col.name(),
+                                given: excerpt(name),
+                                found: found(),
+                            },
+                        ));
+                    }
+                    _ => {
+                        return Err(err(
+                            first_line,
+                            ErrorKind::AmbiguousColumn { role: col.name(), found: found() },
+                        ));
+                    }
+                }
+            }
+        };
+        if let Some(r2) = slot.iter().position(|s| *s == Some(idx)) {
+            let kind = ErrorKind::DuplicateColumn(format!(
+                "{} (given for {} and {})",
+                idx + 1,
+                roles[r2].name(),
+                col.name()
+            ));
+            return Err(err(first_line, kind));
+        }
+        slot[r] = Some(idx);
+        scale_from_header[r] = recognised.get(idx).and_then(|x| x.1);
+    }
+    if header {
+        // Roles not given are found by their names.
+        for (r, &col) in roles.iter().enumerate() {
+            if slot[r].is_some() {
+                continue;
+            }
+            let hits: Vec<usize> = recognised
+                .iter()
+                .enumerate()
+                .filter(|(i, (c, _))| *c == Some(col) && !slot.contains(&Some(*i)))
+                .map(|(i, _)| i)
+                .collect();
+            match hits.as_slice() {
+                [] => {}
+                [i] => {
+                    slot[r] = Some(*i);
+                    scale_from_header[r] = recognised[*i].1;
+                }
+                _ => {
+                    return Err(err(
+                        first_line,
+                        ErrorKind::AmbiguousColumn { role: col.name(), found: found() },
+                    ));
+                }
+            }
+        }
+        if opts.columns.is_none() {
+            // Without --columns every named column must be one of the record's: a typo must
+            // not silently drop a signal.
+            let names = names.as_deref().unwrap_or_default();
+            if let Some(i) = (0..width).find(|i| !names[*i].is_empty() && !slot.contains(&Some(*i))) {
+                let kind = ErrorKind::UnknownColumn { name: excerpt(&names[i]), found: found() };
+                return Err(err(first_line, kind));
+            }
+        }
+    } else if opts.columns.is_none() {
+        return Err(err(first_line, ErrorKind::MissingHeader { fields: width }));
+    }
+    for (r, col) in [(1, Col::U), (2, Col::Y)] {
+        if slot[r].is_none() {
+            return Err(err(first_line, ErrorKind::MissingColumn { role: col.name(), found: found() }));
+        }
+    }
+    let time_col = slot[0];
+    if time_col.is_none() && opts.sample_rate_hz.is_none() {
+        return Err(err(first_line, ErrorKind::NoTime { found: found() }));
+    }
+    if let (Some(_), Some(_), Some(_)) = (given.t.as_ref(), opts.sample_rate_hz, time_col) {
+        return Err(whole(ErrorKind::TimeTwice));
+    }
+    let u_scale = opts.u_unit.map(VoltUnit::volts).or(scale_from_header[1]).unwrap_or(1.0);
+    let y_scale = opts.y_unit.map(LengthUnit::micrometres).or(scale_from_header[2]).unwrap_or(1.0);
+    let t_scale = scale_from_header[0].unwrap_or(1.0);
+    let u_unit = [VoltUnit::V, VoltUnit::MilliV, VoltUnit::KiloV]
+        .into_iter()
+        .find(|u| u.volts() == u_scale)
+        .unwrap_or(VoltUnit::V);
+    let y_unit = LengthUnit::ALL.into_iter().find(|u| u.micrometres() == y_scale).unwrap_or(LengthUnit::Um);
+
+    // The columns to read, in file order.
+    let mut wanted: Vec<(usize, Col, f64)> = roles
+        .iter()
+        .zip(slot)
+        .filter_map(|(&col, s)| {
+            let scale = match col {
+                Col::T => t_scale,
+                Col::U => u_scale,
+                Col::Y | Col::D => y_scale,
+            };
+            s.map(|i| (i, col, scale))
+        })
+        .collect();
+    wanted.sort_by_key(|w| w.0);
+    let has_d = slot[3].is_some();
+
+    // Rows.
+    let rows_hint = text.bytes().filter(|&b| b == b'\n').count() + 1;
+    let mut t = Vec::with_capacity(if time_col.is_some() { rows_hint } else { 0 });
+    let mut t_unit = Vec::with_capacity(t.capacity());
+    let mut line_of = Vec::with_capacity(rows_hint);
+    let mut u = Vec::with_capacity(rows_hint);
+    let mut y = Vec::with_capacity(rows_hint);
+    let mut d = Vec::with_capacity(if has_d { rows_hint } else { 0 });
+    for (line_no, line) in lines {
+        let f = fields(line, sep);
+        // A trailing separator on data rows only is tolerated.
+        let n_fields =
+            if f.len() > width && f[width..].iter().all(|x| x.is_empty()) { width } else { f.len() };
+        if n_fields != width {
+            return Err(err(line_no, ErrorKind::FieldCount { expected: width, found: f.len() }));
+        }
+        for &(i, col, scale) in &wanted {
+            let field = f[i];
+            let raw: f64 = field.parse().map_err(|_| {
+                err(line_no, ErrorKind::NotANumber { column: col.name().into(), text: excerpt(field) })
+            })?;
+            if !raw.is_finite() {
+                return Err(err(
+                    line_no,
+                    ErrorKind::NotFinite { column: col.name().into(), text: excerpt(field) },
+                ));
+            }
+            let mut v = raw * scale;
+            // Subnormal values are zero in any physical unit, and slow every later step.
+            if v != 0.0 && v.abs() < f64::MIN_POSITIVE {
+                v = 0.0;
+            }
+            super::check_value(col, v, field).map_err(|kind| err(line_no, kind))?;
+            match col {
+                Col::T => {
+                    if let Some(&previous) = t.last() {
+                        if v <= previous {
+                            return Err(err(line_no, ErrorKind::TimeNotIncreasing { previous, t: v }));
+                        }
+                    }
+                    t.push(v);
+                    t_unit.push(last_digit_unit(field) * scale);
+                }
+                Col::U => u.push(v),
+                Col::Y => y.push(v),
+                Col::D => d.push(v),
+            }
+        }
+        line_of.push(line_no);
+    }
+
+    let n = u.len();
+    if n < MIN_SAMPLES {
+        return Err(whole(ErrorKind::TooFewSamples { found: n, needed: MIN_SAMPLES }));
+    }
+    let (t0, ts, time) = match time_col {
+        Some(i) => {
+            let mut steps: Vec<f64> = t.windows(2).map(|w| w[1] - w[0]).collect();
+            let mid = steps.len() / 2;
+            let median = *steps.select_nth_unstable_by(mid, f64::total_cmp).1;
+            for k in 1..n {
+                let dt = t[k] - t[k - 1];
+                let written = (0.5 * (t_unit[k] + t_unit[k - 1])).min(0.5 * median);
+                let roundoff = 4.0 * f64::EPSILON * (t[k].abs() + t[k - 1].abs());
+                let tolerance = UNIFORM_TOLERANCE * median + written + roundoff;
+                if (dt - median).abs() > tolerance {
+                    return Err(err(line_of[k], ErrorKind::NonUniform { dt, median, tolerance }));
+                }
+            }
+            let ts = (t[n - 1] - t[0]) / (n - 1) as f64;
+            if let Some(hz) = opts.sample_rate_hz {
+                if (hz * ts - 1.0).abs() > UNIFORM_TOLERANCE {
+                    return Err(whole(ErrorKind::RateMismatch { from_time_hz: 1.0 / ts, given_hz: hz }));
+                }
+            }
+            let name = names.as_ref().map_or_else(|| (i + 1).to_string(), |n| excerpt(&n[i]));
+            (t[0], ts, TimeSource::Column(name))
+        }
+        None => {
+            let hz = opts.sample_rate_hz.unwrap_or(f64::NAN);
+            (0.0, 1.0 / hz, TimeSource::SampleRate(hz))
+        }
+    };
+    if !(TS_MIN_S..=TS_MAX_S).contains(&ts) {
+        return Err(whole(ErrorKind::SampleInterval(ts)));
+    }
+    // An output that spans less than a nanometre or more than 10 mm as read is likely in
+    // another unit.
+    let (lo, hi) = y.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &v| (a.min(v), b.max(v)));
+    let span = hi - lo;
+    if span > 0.0 && !(MIN_SPAN_UM..=MAX_SPAN_UM).contains(&span) {
+        let kind = ErrorKind::OutputSpan {
+            span_um: span,
+            read_in: y_unit.name(),
+            likely: likely_unit(span, y_unit).map(LengthUnit::name),
+        };
+        return Err(whole(kind));
+    }
+    let columns = roles
+        .iter()
+        .zip(slot)
+        .filter_map(|(col, s)| {
+            let i = s?;
+            let from = match &names {
+                Some(n) if !n[i].is_empty() => format!("{:?}", excerpt(&n[i])),
+                _ => format!("column {}", i + 1),
+            };
+            Some((col.name(), from))
+        })
+        .collect();
+    let record = Record { source: source.to_owned(), ts, t0, u, y, d: has_d.then_some(d) };
+    Ok(Imported { record, info: ImportInfo { separator: sep, header, columns, u_unit, y_unit, time } })
+}
+
+/// The unit of the last digit of a decimal number as written: `0.0003` → 1e-4,
+/// `1.5e-3` → 1e-4, `12` → 1.
+pub(super) fn last_digit_unit(text: &str) -> f64 {
+    let (mantissa, exp) = match text.find(['e', 'E']) {
+        Some(i) => (&text[..i], text[i + 1..].parse::<i32>().unwrap_or(0)),
+        None => (text, 0),
+    };
+    let decimals = mantissa.find('.').map_or(0, |i| mantissa.len() - i - 1);
+    10f64.powi(exp.saturating_sub(decimals.min(400) as i32))
+}

@@ -1,0 +1,1076 @@
+//! What drives a record, and where it is steady: drive classification ([`classify`]) and
+//! the steady window ([`steady_window`]).
+//!
+//! A record measured on a bench rarely starts with its drive: it may start idle, step onto
+//! the drive, change amplitude or offset, end idle, and the actuator rings after each step.
+//! Analysis is made on the part where the drive is steady and the output has settled.
+//!
+//! ## The drive ([`classify`])
+//! On the steady part of `u` (mean removed):
+//! - [`DriveKind::None`]: its standard deviation is below
+//!   [`MIN_EXCITATION_STD_V`](crate::record::MIN_EXCITATION_STD_V), or it has no oscillating
+//!   component;
+//! - [`DriveKind::Sine`]: the dominant line `f` holds at least half of the variance, `f` and
+//!   its harmonics at least [`HARMONIC_SHARE`], and the harmonic distortion
+//!   `√(Σ_{k≥2} A_k²)/A_1` is at most [`SINE_MAX_THD`] (a sine with some distortion of its
+//!   own: an amplifier's);
+//! - [`DriveKind::Periodic`]: the same with more distortion (a triangle, a square), or a
+//!   repeating waveform whose lowest line holds at least half of the variance;
+//! - [`DriveKind::Multisine`]: `u` repeats with a period found by its autocorrelation (at
+//!   least [`PERIODIC_CORRELATION`] at one period), the average period holds at least
+//!   [`HARMONIC_SHARE`] of the variance, and at least three lines are excited (amplitude at
+//!   least [`EXCITED_LINE_REL`] of the largest), none holding half of the variance;
+//! - [`DriveKind::Aperiodic`]: none of these (a chirp, noise).
+//!
+//! ## The steady window ([`steady_window`])
+//! 1. **Steady drive.** `u` is cut into blocks of the smallest length (from a ladder of
+//!    lengths growing by 20 %) over which the peak-to-peak value of the busy blocks is the
+//!    same within [`LEVEL_TOLERANCE`] for at least three quarters of them; for a periodic
+//!    drive that is about one period. Consecutive blocks whose peak-to-peak value and
+//!    mid-level agree within [`LEVEL_TOLERANCE`] (of the peak-to-peak value) form runs;
+//!    idle parts, steps and amplitude changes end a run, and a gradual fade is trimmed off
+//!    against the run's median. The longest run is the steady drive. If no block length
+//!    gives stable peaks (noise), blocks of 1/32 of the record are compared by their
+//!    standard deviation and mean within [`NOISE_LEVEL_TOLERANCE`].
+//! 2. **Edges.** For a periodic drive the run's start is moved back, sample by sample, as
+//!    long as one period from there still has the run's level: the start is then within a
+//!    fraction of a period of the step onto the drive. The model's free run starts there
+//!    ([`Window::drive_on`]).
+//! 3. **Start-up transient.** For a periodic drive, the output's periodic part is measured
+//!    on the second half of the steady drive and subtracted; each period of what is left,
+//!    its own mean and slope removed (slow creep or drift is not a start-up transient), has
+//!    an RMS; the output has settled from the first period whose RMS and the next one's are
+//!    within [`SETTLED_FACTOR`] times the median of the second half.
+//! 4. **Whole periods.** For a periodic drive the window ends after a whole number of
+//!    periods from its start.
+//!
+//! `--window START:END` ([`Window::given`]) replaces 1–3; the end is still cut to whole
+//! periods.
+
+use crate::analysis::{self, Tone};
+use crate::record::MIN_EXCITATION_STD_V;
+use rustfft::FftPlanner;
+use rustfft::num_complex::Complex;
+use std::fmt::Write as _;
+
+/// The largest harmonic distortion of a drive still called a sine.
+pub const SINE_MAX_THD: f64 = 0.05;
+/// Share of the variance a periodic drive's lines must hold.
+pub const HARMONIC_SHARE: f64 = 0.97;
+/// Autocorrelation at one period of a repeating drive.
+pub const PERIODIC_CORRELATION: f64 = 0.8;
+/// A line of a multisine is excited when its amplitude reaches this fraction of the largest.
+pub const EXCITED_LINE_REL: f64 = 0.1;
+/// Blocks of a steady periodic drive agree in peak-to-peak value and mid-level within this
+/// fraction of the peak-to-peak value.
+pub const LEVEL_TOLERANCE: f64 = 0.05;
+/// Blocks of a steady aperiodic drive agree in standard deviation and mean within this
+/// fraction of the standard deviation.
+pub const NOISE_LEVEL_TOLERANCE: f64 = 0.15;
+/// A block is busy when its peak-to-peak value reaches this fraction of the largest.
+pub const BUSY_REL: f64 = 0.25;
+/// The output has settled when a period's RMS departure from the periodic part is within
+/// this factor of the settled periods' median.
+pub const SETTLED_FACTOR: f64 = 2.0;
+/// Highest harmonic of a sine or periodic drive measured.
+pub const DRIVE_HARMONICS: usize = 40;
+
+/// What kind of drive a record has.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum DriveKind {
+    /// One sine (with at most [`SINE_MAX_THD`] distortion of its own).
+    Sine,
+    /// A periodic waveform that is not a sine (triangle, square, …).
+    Periodic,
+    /// A sum of sines on the lines of one period (a multisine).
+    Multisine,
+    /// Not periodic: a chirp, noise.
+    Aperiodic,
+    /// No drive: `u` is constant.
+    None,
+}
+
+impl DriveKind {
+    /// The JSON name.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            DriveKind::Sine => "sine",
+            DriveKind::Periodic => "periodic",
+            DriveKind::Multisine => "multisine",
+            DriveKind::Aperiodic => "aperiodic",
+            DriveKind::None => "none",
+        }
+    }
+}
+
+/// A record's drive, as found in `u`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Drive {
+    /// The kind.
+    pub kind: DriveKind,
+    /// Sine and periodic: the fundamental (Hz); multisine: the line spacing `1/period`;
+    /// aperiodic: the dominant frequency; none: 0.
+    pub freq_hz: f64,
+    /// One period in samples (sine, periodic, multisine).
+    pub period_samples: Option<f64>,
+    /// Sine and periodic: harmonics `1..` of `u` (V), over whole periods.
+    pub harmonics: Vec<Tone>,
+    /// Sine and periodic: `√(Σ_{k≥2} A_k²)/A_1`.
+    pub thd: f64,
+    /// Multisine: the excited lines (multiples of `freq_hz`) and their amplitudes (V).
+    pub lines: Vec<(u32, f64)>,
+    /// Share of `u`'s variance on the lines of the period (0 for aperiodic drives).
+    pub periodic_share: f64,
+    /// Standard deviation of `u` (V).
+    pub std_v: f64,
+}
+
+impl Drive {
+    /// Whether the drive repeats (sine, periodic, multisine).
+    pub fn is_periodic(&self) -> bool {
+        matches!(self.kind, DriveKind::Sine | DriveKind::Periodic | DriveKind::Multisine)
+    }
+
+    /// The harmonic `k` of a sine or periodic drive relative to its fundamental (0 if not measured).
+    pub fn harmonic_rel(&self, k: usize) -> f64 {
+        match (self.harmonics.first(), self.harmonics.get(k.wrapping_sub(1))) {
+            (Some(h1), Some(hk)) if h1.amp > 0.0 => hk.amp / h1.amp,
+            _ => 0.0,
+        }
+    }
+
+    /// One phrase: "sine 23.000 Hz (own harmonic distortion 0.01 %)", "multisine, period
+    /// 1.024 s, 40 excited lines from 0.98 to 48.8 Hz", ….
+    pub fn describe(&self) -> String {
+        match self.kind {
+            DriveKind::Sine => {
+                format!("sine {:.3} Hz (own harmonic distortion {:.2} %)", self.freq_hz, 100.0 * self.thd)
+            }
+            DriveKind::Periodic => format!(
+                "periodic, not a sine: fundamental {:.3} Hz, harmonic distortion {:.1} %",
+                self.freq_hz,
+                100.0 * self.thd
+            ),
+            DriveKind::Multisine => {
+                let (lo, hi) = (
+                    self.lines.first().map_or(0, |l| l.0) as f64 * self.freq_hz,
+                    self.lines.last().map_or(0, |l| l.0) as f64 * self.freq_hz,
+                );
+                format!(
+                    "multisine: period {:.4} s, {} excited lines from {lo:.3} to {hi:.3} Hz",
+                    1.0 / self.freq_hz,
+                    self.lines.len()
+                )
+            }
+            DriveKind::Aperiodic => {
+                format!("aperiodic (no period found; dominant frequency {:.3} Hz)", self.freq_hz)
+            }
+            DriveKind::None => format!("none: u is constant (standard deviation {:.2e} V)", self.std_v),
+        }
+    }
+}
+
+/// Harmonics of `f_hz` measured: up to [`DRIVE_HARMONICS`], below 0.45 of the sample rate
+/// (a tone at Nyquist has no sine component to fit).
+pub fn harmonic_count(f_hz: f64, ts: f64) -> usize {
+    ((0.45 / ts / f_hz).floor() as usize).clamp(1, DRIVE_HARMONICS)
+}
+
+fn variance(x: &[f64]) -> f64 {
+    let m = analysis::mean(x);
+    x.iter().map(|v| (v - m) * (v - m)).sum::<f64>() / x.len().max(1) as f64
+}
+
+/// Classifies the drive `u` (sampled at `ts`); see the module docs.
+pub fn classify(u: &[f64], ts: f64) -> Drive {
+    let var = variance(u);
+    let std_v = var.sqrt();
+    let none = Drive {
+        kind: DriveKind::None,
+        freq_hz: 0.0,
+        period_samples: None,
+        harmonics: vec![],
+        thd: 0.0,
+        lines: vec![],
+        periodic_share: 0.0,
+        std_v,
+    };
+    if std_v < MIN_EXCITATION_STD_V || u.len() < 8 {
+        return none;
+    }
+    let Some(f_dom) = analysis::estimate_drive(u, ts) else { return none };
+    // A sine or a periodic waveform whose dominant line is its fundamental.
+    let n = analysis::whole_periods(u.len(), f_dom, ts);
+    let harmonics = analysis::harmonics(&u[..n], f_dom, ts, harmonic_count(f_dom, ts));
+    let var_n = variance(&u[..n]).max(1e-300);
+    let power = |t: &Tone| t.amp * t.amp / 2.0;
+    let fund = harmonics.first().map_or(0.0, power) / var_n;
+    let share = harmonics.iter().map(power).sum::<f64>() / var_n;
+    let thd = match harmonics.first() {
+        Some(h1) if h1.amp > 0.0 => {
+            harmonics.iter().skip(1).map(|t| t.amp * t.amp).sum::<f64>().sqrt() / h1.amp
+        }
+        _ => 0.0,
+    };
+    if fund >= 0.5 && share >= HARMONIC_SHARE {
+        let kind = if thd <= SINE_MAX_THD { DriveKind::Sine } else { DriveKind::Periodic };
+        return Drive {
+            kind,
+            freq_hz: f_dom,
+            period_samples: Some(1.0 / (f_dom * ts)),
+            harmonics,
+            thd,
+            lines: vec![],
+            periodic_share: share.min(1.0),
+            std_v,
+        };
+    }
+    // A repeating waveform whose dominant line is not its fundamental: a multisine.
+    let aperiodic = Drive { kind: DriveKind::Aperiodic, freq_hz: f_dom, ..none.clone() };
+    let Some(period) = autocorrelation_period(u) else { return aperiodic };
+    let p = period.round() as usize;
+    let periods = u.len() / p.max(1);
+    if p < 4 || periods < 2 {
+        return aperiodic;
+    }
+    // The average period and its lines.
+    let mean = analysis::mean(u);
+    let mut avg = vec![0.0; p];
+    for k in 0..periods * p {
+        avg[k % p] += (u[k] - mean) / periods as f64;
+    }
+    let periodic_share = (variance(&avg) / variance(&u[..periods * p]).max(1e-300)).min(1.0);
+    if periodic_share < HARMONIC_SHARE {
+        return aperiodic;
+    }
+    let mut buf: Vec<Complex<f64>> = avg.iter().map(|&v| Complex::new(v, 0.0)).collect();
+    FftPlanner::new().plan_fft_forward(p).process(&mut buf);
+    let amps: Vec<f64> = buf[..p / 2 + 1].iter().map(|c| 2.0 * c.norm() / p as f64).collect();
+    let max = amps.iter().skip(1).copied().fold(0.0, f64::max);
+    let lines: Vec<(u32, f64)> = amps
+        .iter()
+        .enumerate()
+        .skip(1)
+        .filter(|(_, a)| **a >= EXCITED_LINE_REL * max)
+        .map(|(k, a)| (k as u32, *a))
+        .collect();
+    let f_base = 1.0 / (p as f64 * ts);
+    let first_share = amps.get(1).map_or(0.0, |a| a * a / 2.0) / variance(&avg).max(1e-300);
+    let kind = if lines.len() >= 3 && first_share < 0.5 { DriveKind::Multisine } else { DriveKind::Periodic };
+    let harmonics = if kind == DriveKind::Periodic {
+        analysis::harmonics(&u[..periods * p], f_base, ts, (p / 2).clamp(1, DRIVE_HARMONICS))
+    } else {
+        vec![]
+    };
+    let thd = match harmonics.first() {
+        Some(h1) if h1.amp > 0.0 => {
+            harmonics.iter().skip(1).map(|t| t.amp * t.amp).sum::<f64>().sqrt() / h1.amp
+        }
+        _ => 0.0,
+    };
+    Drive {
+        kind,
+        freq_hz: f_base,
+        period_samples: Some(p as f64),
+        harmonics,
+        thd,
+        lines: if kind == DriveKind::Multisine { lines } else { vec![] },
+        periodic_share,
+        std_v,
+    }
+}
+
+/// The period (samples, refined between samples) of a repeating signal: the first peak of
+/// its normalised autocorrelation, after it has fallen below 0.5, that reaches
+/// [`PERIODIC_CORRELATION`] and is at least 0.9 of the highest peak up to half the length.
+pub fn autocorrelation_period(x: &[f64]) -> Option<f64> {
+    let n = x.len();
+    if n < 16 {
+        return None;
+    }
+    let m = analysis::mean(x);
+    let len = (2 * n).next_power_of_two();
+    let mut buf: Vec<Complex<f64>> = x
+        .iter()
+        .map(|&v| Complex::new(v - m, 0.0))
+        .chain(std::iter::repeat(Complex::new(0.0, 0.0)))
+        .take(len)
+        .collect();
+    let mut planner = FftPlanner::new();
+    planner.plan_fft_forward(len).process(&mut buf);
+    for c in buf.iter_mut() {
+        *c = Complex::new(c.norm_sqr(), 0.0);
+    }
+    planner.plan_fft_inverse(len).process(&mut buf);
+    let c0 = buf[0].re;
+    if c0.is_nan() || c0 <= 0.0 {
+        return None;
+    }
+    let half = n / 2;
+    let r: Vec<f64> = (0..=half).map(|k| buf[k].re / c0 * n as f64 / (n - k) as f64).collect();
+    let dip = r.iter().position(|&v| v < 0.5)?;
+    let best = r[dip..].iter().copied().fold(f64::NEG_INFINITY, f64::max);
+    if best < PERIODIC_CORRELATION {
+        return None;
+    }
+    let k = (dip.max(1)..half).find(|&k| r[k] >= 0.9 * best && r[k] >= r[k - 1] && r[k] >= r[k + 1])?;
+    // Parabolic refinement of the peak.
+    let (a, b, c) = (r[k - 1], r[k], r[k + 1]);
+    let denom = a - 2.0 * b + c;
+    let shift = if denom.abs() > 1e-300 { (0.5 * (a - c) / denom).clamp(-0.5, 0.5) } else { 0.0 };
+    Some(k as f64 + shift)
+}
+
+/// The part of a record analysed.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Window {
+    /// First sample of the steady drive: the model's free run starts here.
+    pub drive_on: usize,
+    /// First sample analysed (the output has settled).
+    pub start: usize,
+    /// One past the last sample analysed.
+    pub end: usize,
+    /// Whether `--window` gave it.
+    pub given: bool,
+    /// Why: what was left out at each end.
+    pub why: String,
+}
+
+impl Window {
+    /// `[start, end]` in the record's time (s).
+    pub fn seconds(&self, t0: f64, ts: f64) -> [f64; 2] {
+        [t0 + self.start as f64 * ts, t0 + self.end as f64 * ts]
+    }
+}
+
+/// Why a window cannot be used.
+#[derive(Clone, Debug, PartialEq)]
+pub enum WindowError {
+    /// `--window` is outside the record or empty.
+    Given {
+        /// Start asked (s).
+        start_s: f64,
+        /// End asked (s).
+        end_s: f64,
+        /// The record's first time (s).
+        t0: f64,
+        /// The record's end (s).
+        t_end: f64,
+    },
+    /// No part of the record has a steady drive.
+    NoSteadyDrive,
+}
+
+impl std::fmt::Display for WindowError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            WindowError::Given { start_s, end_s, t0, t_end } => write!(
+                f,
+                "--window {start_s}:{end_s} is not a part of the record, which runs from {t0} to {t_end} s"
+            ),
+            WindowError::NoSteadyDrive => {
+                write!(f, "no part of the record has a steady drive (u idle throughout)")
+            }
+        }
+    }
+}
+
+impl std::error::Error for WindowError {}
+
+/// Peak-to-peak value, mid-level and standard deviation of one block.
+#[derive(Clone, Copy, Debug)]
+struct Level {
+    p2p: f64,
+    mid: f64,
+    std: f64,
+}
+
+fn level(x: &[f64]) -> Level {
+    let (lo, hi) = x.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &v| (a.min(v), b.max(v)));
+    Level { p2p: hi - lo, mid: 0.5 * (hi + lo), std: variance(x).sqrt() }
+}
+
+fn median(mut v: Vec<f64>) -> f64 {
+    if v.is_empty() {
+        return 0.0;
+    }
+    let mid = v.len() / 2;
+    *v.select_nth_unstable_by(mid, f64::total_cmp).1
+}
+
+/// How blocks are compared: by peak-to-peak value (periodic drives, blocks of about a
+/// period) or by standard deviation (noise).
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Compare {
+    Peaks,
+    Spread,
+}
+
+impl Compare {
+    fn agree(self, a: Level, b: Level) -> bool {
+        match self {
+            Compare::Peaks => {
+                let s = a.p2p.max(b.p2p);
+                (a.p2p - b.p2p).abs() <= LEVEL_TOLERANCE * s && (a.mid - b.mid).abs() <= LEVEL_TOLERANCE * s
+            }
+            Compare::Spread => {
+                let s = a.std.max(b.std);
+                (a.std - b.std).abs() <= NOISE_LEVEL_TOLERANCE * s
+                    && (a.mid - b.mid).abs() <= NOISE_LEVEL_TOLERANCE * s
+            }
+        }
+    }
+    fn size(self, l: &Level) -> f64 {
+        match self {
+            Compare::Peaks => l.p2p,
+            Compare::Spread => l.std,
+        }
+    }
+}
+
+/// The block length and levels of the steady-drive search (step 1 of the module docs): the
+/// smallest length at which three quarters of the neighbouring busy blocks have the same
+/// peak-to-peak value.
+fn blocks(u: &[f64]) -> (usize, Vec<Level>, Compare) {
+    let n = u.len();
+    let mut w = 8usize;
+    while w <= n / 4 {
+        let levels: Vec<Level> = u.chunks_exact(w).map(level).collect();
+        let big = levels.iter().map(|l| l.p2p).fold(0.0, f64::max);
+        let busy = |l: &Level| l.p2p >= BUSY_REL * big;
+        let pairs: Vec<bool> = levels
+            .windows(2)
+            .filter(|p| busy(&p[0]) && busy(&p[1]))
+            .map(|p| {
+                let s = p[0].p2p.max(p[1].p2p);
+                (p[0].p2p - p[1].p2p).abs() <= LEVEL_TOLERANCE * s
+                    && (p[0].mid - p[1].mid).abs() <= LEVEL_TOLERANCE * s
+            })
+            .collect();
+        if pairs.len() >= 2 && big > 0.0 && pairs.iter().filter(|&&b| b).count() * 10 >= pairs.len() * 9 {
+            return (w, levels, Compare::Peaks);
+        }
+        w = (w as f64 * 1.2).ceil() as usize;
+    }
+    let w = (n / 32).max(1);
+    (w, u.chunks_exact(w).map(level).collect(), Compare::Spread)
+}
+
+/// The longest run of steady blocks `[first, last]` and its median level.
+fn longest_run(levels: &[Level], cmp: Compare) -> Option<(usize, usize, Level)> {
+    let big = levels.iter().map(|l| cmp.size(l)).fold(0.0, f64::max);
+    if big.is_nan() || big <= 0.0 {
+        return None;
+    }
+    let busy = |l: &Level| cmp.size(l) >= BUSY_REL * big;
+    let mut best: Option<(usize, usize, Level)> = None;
+    let mut i = 0;
+    while i < levels.len() {
+        if !busy(&levels[i]) {
+            i += 1;
+            continue;
+        }
+        let mut j = i;
+        while j + 1 < levels.len() && busy(&levels[j + 1]) && cmp.agree(levels[j], levels[j + 1]) {
+            j += 1;
+        }
+        // Trim blocks that depart from the run's median (a gradual fade).
+        let (mut a, mut b) = (i, j);
+        let mut med = levels[a];
+        for _ in 0..64 {
+            med = Level {
+                p2p: median(levels[a..=b].iter().map(|l| l.p2p).collect()),
+                mid: median(levels[a..=b].iter().map(|l| l.mid).collect()),
+                std: median(levels[a..=b].iter().map(|l| l.std).collect()),
+            };
+            let before = (a, b);
+            while a < b && !cmp.agree(levels[a], med) {
+                a += 1;
+            }
+            while b > a && !cmp.agree(levels[b], med) {
+                b -= 1;
+            }
+            if (a, b) == before {
+                break;
+            }
+        }
+        if cmp.agree(levels[a], med) && best.is_none_or(|(x, y, _)| b - a > y - x) {
+            best = Some((a, b, med));
+        }
+        i = j + 1;
+    }
+    best
+}
+
+/// Levels of the windows `[s, s + w)` for `s` in `from..to` (monotonic deques for the
+/// extremes, running sums for the standard deviation).
+fn sliding_levels(x: &[f64], w: usize, from: usize, to: usize) -> Vec<Level> {
+    use std::collections::VecDeque;
+    let end = (to + w - 1).min(x.len());
+    if to <= from || end < from + w {
+        return vec![];
+    }
+    let mut maxq: VecDeque<usize> = VecDeque::new();
+    let mut minq: VecDeque<usize> = VecDeque::new();
+    let mut out = Vec::with_capacity(to - from);
+    let shift = x[from];
+    let (mut sum, mut sum2) = (0.0, 0.0);
+    for k in from..end {
+        while maxq.back().is_some_and(|&i| x[i] <= x[k]) {
+            maxq.pop_back();
+        }
+        maxq.push_back(k);
+        while minq.back().is_some_and(|&i| x[i] >= x[k]) {
+            minq.pop_back();
+        }
+        minq.push_back(k);
+        let v = x[k] - shift;
+        sum += v;
+        sum2 += v * v;
+        if k >= from + w {
+            let old = x[k - w] - shift;
+            sum -= old;
+            sum2 -= old * old;
+        }
+        if k + 1 >= from + w {
+            let s = k + 1 - w;
+            while maxq.front().is_some_and(|&i| i < s) {
+                maxq.pop_front();
+            }
+            while minq.front().is_some_and(|&i| i < s) {
+                minq.pop_front();
+            }
+            let (hi, lo) = (x[*maxq.front().unwrap_or(&k)], x[*minq.front().unwrap_or(&k)]);
+            let mean = sum / w as f64;
+            let var = (sum2 / w as f64 - mean * mean).max(0.0);
+            out.push(Level { p2p: hi - lo, mid: 0.5 * (hi + lo), std: var.sqrt() });
+        }
+    }
+    out
+}
+
+/// One period from `s` has the steady level: peak-to-peak value, mid-level and standard
+/// deviation (over exactly one period, a standard deviation does not depend on the phase).
+fn period_agrees(l: Level, steady: Level) -> bool {
+    let s = l.p2p.max(steady.p2p);
+    (l.p2p - steady.p2p).abs() <= LEVEL_TOLERANCE * s
+        && (l.mid - steady.mid).abs() <= LEVEL_TOLERANCE * s
+        && (l.std - steady.std).abs() <= LEVEL_TOLERANCE * l.std.max(steady.std)
+}
+
+/// The steady window of a record (see the module docs). `given` is `--window` in samples.
+pub fn steady_window(
+    u: &[f64],
+    y: &[f64],
+    ts: f64,
+    given: Option<(usize, usize)>,
+) -> Result<(Window, Drive), WindowError> {
+    let n = u.len().min(y.len());
+    if let Some((start, end)) = given {
+        let drive = classify(&u[start..end], ts);
+        let end2 = whole_period_end(start, end, &drive);
+        let mut why = String::from("given by --window");
+        if end2 < end {
+            let _ = write!(why, "; cut to whole periods of the drive at {} s", fmt_s(end2 as f64 * ts));
+        }
+        return Ok((Window { drive_on: start, start, end: end2, given: true, why }, drive));
+    }
+    let (mut w, mut levels, cmp) = blocks(&u[..n]);
+    let (mut a, mut b, _) = longest_run(&levels, cmp).ok_or(WindowError::NoSteadyDrive)?;
+    // The drive, from the run's inner blocks (the outer ones may hold part of a step).
+    let inner_of =
+        |a: usize, b: usize, w: usize| if b >= a + 2 { ((a + 1) * w, b * w) } else { (a * w, (b + 1) * w) };
+    let mut inner = inner_of(a, b, w);
+    let mut first = classify(&u[inner.0..inner.1], ts);
+    if let (true, Some(p), Compare::Peaks) = (first.is_periodic(), first.period_samples, cmp) {
+        // Blocks shorter than a period may miss a peak: again with blocks of one period.
+        if (w as f64) < p && (p.ceil() as usize) <= n / 4 {
+            w = p.ceil() as usize;
+            levels = u[..n].chunks_exact(w).map(level).collect();
+            (a, b, _) = longest_run(&levels, cmp).ok_or(WindowError::NoSteadyDrive)?;
+            inner = inner_of(a, b, w);
+            first = classify(&u[inner.0..inner.1], ts);
+        }
+    }
+    let (mut on, mut off) = (a * w, (b + 1) * w);
+    if b + 1 == levels.len() && cmp == Compare::Spread {
+        off = n;
+    }
+    if let (true, Some(p), Compare::Peaks) = (first.is_periodic(), first.period_samples, cmp) {
+        // Edges to within a fraction of a period: one period from there must keep the level.
+        let pw = (p.ceil() as usize).max(2);
+        let steady = level(&u[inner.0..inner.0 + pw.min(inner.1 - inner.0)]);
+        let steady = Level {
+            std: median(
+                sliding_levels(&u[..n], pw, inner.0, inner.1.saturating_sub(pw).max(inner.0 + 1))
+                    .iter()
+                    .map(|l| l.std)
+                    .collect(),
+            ),
+            ..steady
+        };
+        let from = inner.0.saturating_sub(2 * w);
+        let lv = sliding_levels(&u[..n], pw, from, inner.0 + 1);
+        let mut s = inner.0;
+        while s > from && s - 1 - from < lv.len() && period_agrees(lv[s - 1 - from], steady) {
+            s -= 1;
+        }
+        on = s;
+        let to = (inner.1 + 2 * w).min(n);
+        if inner.1 >= pw && to > inner.1 {
+            let from_s = inner.1 + 1 - pw;
+            let lv = sliding_levels(&u[..n], pw, from_s, to + 1 - pw);
+            let mut e = inner.1;
+            while e < to && e - inner.1 < lv.len() && period_agrees(lv[e - inner.1], steady) {
+                e += 1;
+            }
+            off = e;
+        } else {
+            off = inner.1;
+        }
+    }
+    let mut why = String::new();
+    if on > 0 {
+        let _ =
+            write!(why, "drive steady from {} s (before: idle or a different drive)", fmt_s(on as f64 * ts));
+    } else {
+        why.push_str("drive steady from the start");
+    }
+    if off < n {
+        let _ = write!(why, " to {} s (after: idle or a different drive)", fmt_s(off as f64 * ts));
+    } else {
+        why.push_str(" to the end");
+    }
+    // Start-up transient of the output.
+    let mut start = on;
+    // The inner blocks' drive: its frequency is not biased by a partial period at an edge.
+    let drive = first;
+    if let (true, Some(p)) = (drive.is_periodic(), drive.period_samples) {
+        let settled = settling(&y[on..off], ts, &drive, p);
+        if settled > 0 {
+            start = on + settled;
+            let _ = write!(
+                why,
+                "; output settled {} s after that (start-up transient left out)",
+                fmt_s(settled as f64 * ts)
+            );
+        }
+    }
+    let end = whole_period_end(start, off, &drive);
+    if end < off && drive.is_periodic() {
+        why.push_str("; whole periods of the drive");
+    }
+    let drive = classify(&u[start..end], ts);
+    Ok((Window { drive_on: on, start, end, given: false, why }, drive))
+}
+
+/// The end of the longest run of whole periods from `start` (for periodic drives).
+fn whole_period_end(start: usize, end: usize, drive: &Drive) -> usize {
+    match (drive.is_periodic(), drive.period_samples) {
+        (true, Some(p)) if p > 0.0 => {
+            let periods = ((end - start) as f64 / p).floor();
+            if periods >= 1.0 { (start + (periods * p).round() as usize).min(end) } else { end }
+        }
+        _ => end,
+    }
+}
+
+/// Samples from the start of the steady drive until the output has settled (step 3).
+fn settling(y: &[f64], ts: f64, drive: &Drive, p: f64) -> usize {
+    let n = y.len();
+    let periods = (n as f64 / p).floor() as usize;
+    if periods < 4 {
+        return 0;
+    }
+    let at = |i: usize| (i as f64 * p).round() as usize;
+    let half = at(periods / 2);
+    let tail = &y[half..at(periods)];
+    // The periodic part, measured on the second half and extended over the whole run.
+    let template: Vec<f64> = match drive.kind {
+        DriveKind::Multisine => {
+            let pp = p.round() as usize;
+            let m = tail.len() / pp;
+            let mut avg = vec![0.0; pp];
+            for k in 0..m * pp {
+                avg[k % pp] += tail[k] / m as f64;
+            }
+            // Align the template's phase: the tail starts at sample `half`.
+            (0..n).map(|k| avg[(k + pp - half % pp) % pp]).collect()
+        }
+        _ => {
+            let kmax = harmonic_count(drive.freq_hz, ts);
+            let mean = analysis::mean(tail);
+            let h = analysis::harmonics(tail, drive.freq_hz, ts, kmax);
+            let mut t = vec![mean; n];
+            for tone in &h {
+                let w = std::f64::consts::TAU * tone.freq_hz * ts;
+                for (k, v) in t.iter_mut().enumerate() {
+                    *v += tone.amp * (w * (k as f64 - half as f64) + tone.phase).sin();
+                }
+            }
+            t
+        }
+    };
+    let rms: Vec<f64> = (0..periods)
+        .map(|i| {
+            let (a, b) = (at(i), at(i + 1).min(n));
+            let e: Vec<f64> = (a..b).map(|k| y[k] - template[k]).collect();
+            analysis::rms(&detrend(&e))
+        })
+        .collect();
+    let reference = median(rms[periods / 2..].to_vec());
+    // A floor of 0.1 % of the output's RMS: a record without noise settles too.
+    let floor = 1e-3 * analysis::rms(&detrend(tail));
+    let limit = (SETTLED_FACTOR * reference).max(floor);
+    let first = (0..periods.saturating_sub(1)).find(|&i| rms[i] <= limit && rms[i + 1] <= limit).unwrap_or(0);
+    at(first)
+}
+
+/// Why a record has no response worth analysing.
+#[derive(Clone, Debug, PartialEq)]
+pub enum NoResponse {
+    /// The output does not change.
+    Constant {
+        /// Its value (µm).
+        value_um: f64,
+    },
+    /// The output takes only a few values: it moves less than the sensor resolves.
+    BelowResolution {
+        /// Distinct values in the window.
+        levels: usize,
+        /// The smallest step between them (µm).
+        step_um: f64,
+    },
+    /// The output does not follow the drive.
+    Uncorrelated {
+        /// Share of the output's variance on the drive's lines (periodic drives) or the
+        /// largest correlation between drive and output over the lags tried (others).
+        share: f64,
+        /// Whether `share` is the variance share (periodic drive).
+        periodic: bool,
+    },
+}
+
+impl std::fmt::Display for NoResponse {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            NoResponse::Constant { value_um } => write!(
+                f,
+                "no response to analyse: the output is constant ({value_um} µm throughout the window); \
+                 is the sensor connected?"
+            ),
+            NoResponse::BelowResolution { levels, step_um } => write!(
+                f,
+                "no response to analyse: the output takes only {levels} values {step_um:.3e} µm apart, below what \
+                 the sensor resolves"
+            ),
+            NoResponse::Uncorrelated { share, periodic: true } => write!(
+                f,
+                "no response to analyse: the output does not follow the drive (the drive's frequencies hold {:.1} % \
+                 of its variance, less than {:.0} %)",
+                100.0 * share,
+                100.0 * MIN_DRIVEN_SHARE
+            ),
+            NoResponse::Uncorrelated { share, periodic: false } => write!(
+                f,
+                "no response to analyse: the output does not follow the drive (largest correlation {share:.3} \
+                 over lags up to {MAX_LAG_S} s, less than {MIN_CORRELATION})"
+            ),
+        }
+    }
+}
+
+impl std::error::Error for NoResponse {}
+
+/// Fewest distinct output values in a window that make a response.
+pub const MIN_LEVELS: usize = 4;
+/// Smallest share of the output's variance on a periodic drive's lines for the output to
+/// follow the drive.
+pub const MIN_DRIVEN_SHARE: f64 = 0.02;
+/// Smallest correlation between an aperiodic drive and the output.
+pub const MIN_CORRELATION: f64 = 0.1;
+/// Longest lag between an aperiodic drive and the output tried (s).
+pub const MAX_LAG_S: f64 = 0.1;
+
+/// Checks that the output responds to the drive in the window (see [`NoResponse`]).
+pub fn check_response(u: &[f64], y: &[f64], ts: f64, drive: &Drive) -> Result<(), NoResponse> {
+    let (lo, hi) = y.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &v| (a.min(v), b.max(v)));
+    if hi.is_nan() || lo.is_nan() || hi <= lo {
+        return Err(NoResponse::Constant { value_um: if lo.is_finite() { lo } else { 0.0 } });
+    }
+    let mut sorted = y.to_vec();
+    sorted.sort_by(f64::total_cmp);
+    sorted.dedup();
+    if sorted.len() < MIN_LEVELS {
+        let step_um = sorted.windows(2).map(|w| w[1] - w[0]).fold(f64::INFINITY, f64::min);
+        return Err(NoResponse::BelowResolution { levels: sorted.len(), step_um });
+    }
+    match drive.kind {
+        DriveKind::Sine | DriveKind::Periodic => {
+            let n = analysis::whole_periods(y.len(), drive.freq_hz, ts);
+            let kmax = harmonic_count(drive.freq_hz, ts);
+            let h = analysis::harmonics(&y[..n], drive.freq_hz, ts, kmax);
+            let share = h.iter().map(|t| t.amp * t.amp / 2.0).sum::<f64>() / variance(&y[..n]).max(1e-300);
+            if share < MIN_DRIVEN_SHARE {
+                return Err(NoResponse::Uncorrelated { share, periodic: true });
+            }
+        }
+        DriveKind::Multisine => {
+            let p = drive.period_samples.unwrap_or(1.0).round().max(1.0) as usize;
+            let share = averaged_period_share(y, p);
+            if share < MIN_DRIVEN_SHARE {
+                return Err(NoResponse::Uncorrelated { share, periodic: true });
+            }
+        }
+        DriveKind::Aperiodic => {
+            let lags = ((MAX_LAG_S / ts) as usize).min(y.len() / 4);
+            let c = max_correlation(u, y, lags);
+            if c < MIN_CORRELATION {
+                return Err(NoResponse::Uncorrelated { share: c, periodic: false });
+            }
+        }
+        DriveKind::None => {}
+    }
+    Ok(())
+}
+
+/// Share of the variance of `x` in its average over periods of `p` samples.
+fn averaged_period_share(x: &[f64], p: usize) -> f64 {
+    let m = x.len() / p.max(1);
+    if m < 2 {
+        return 1.0;
+    }
+    let mut avg = vec![0.0; p];
+    for k in 0..m * p {
+        avg[k % p] += x[k] / m as f64;
+    }
+    (variance(&avg) / variance(&x[..m * p]).max(1e-300)).min(1.0)
+}
+
+/// The largest `|corr(u[k], y[k + lag])|` for `lag` in `0..=lags`.
+fn max_correlation(u: &[f64], y: &[f64], lags: usize) -> f64 {
+    let n = u.len().min(y.len());
+    let (mu, my) = (analysis::mean(&u[..n]), analysis::mean(&y[..n]));
+    let (su, sy) = (variance(&u[..n]).sqrt(), variance(&y[..n]).sqrt());
+    if !(su > 0.0 && sy > 0.0) {
+        return 0.0;
+    }
+    let len = (2 * n).next_power_of_two();
+    let mut a: Vec<Complex<f64>> =
+        (0..len).map(|k| Complex::new(if k < n { u[k] - mu } else { 0.0 }, 0.0)).collect();
+    let mut b: Vec<Complex<f64>> =
+        (0..len).map(|k| Complex::new(if k < n { y[k] - my } else { 0.0 }, 0.0)).collect();
+    let mut planner = FftPlanner::new();
+    let fwd = planner.plan_fft_forward(len);
+    fwd.process(&mut a);
+    fwd.process(&mut b);
+    let mut c: Vec<Complex<f64>> = a.iter().zip(&b).map(|(x, y)| x.conj() * y).collect();
+    planner.plan_fft_inverse(len).process(&mut c);
+    (0..=lags.min(n - 1))
+        .map(|l| (c[l].re / len as f64 / (n - l) as f64 / (su * sy)).abs())
+        .fold(0.0, f64::max)
+}
+
+/// The output's noise floor (µm) in a window and how it was measured: for a periodic
+/// drive what does not repeat from period to period (a sine or periodic drive: the output
+/// less its harmonics of the drive and a slow cubic trend; a multisine: less its average
+/// period), else from the second difference (an upper bound for a smooth output).
+pub fn noise_floor(y: &[f64], ts: f64, drive: &Drive) -> (f64, &'static str) {
+    match drive.kind {
+        DriveKind::Sine | DriveKind::Periodic => {
+            let n = analysis::whole_periods(y.len(), drive.freq_hz, ts);
+            let kmax = harmonic_count(drive.freq_hz, ts);
+            let h = analysis::harmonics(&y[..n], drive.freq_hz, ts, kmax);
+            let mut rest: Vec<f64> = y[..n].to_vec();
+            for t in &h {
+                let w = std::f64::consts::TAU * t.freq_hz * ts;
+                for (k, v) in rest.iter_mut().enumerate() {
+                    *v -= t.amp * (w * k as f64 + t.phase).sin();
+                }
+            }
+            (analysis::rms(&detrend_cubic(&rest)), "period_to_period")
+        }
+        DriveKind::Multisine => {
+            let p = drive.period_samples.unwrap_or(1.0).round().max(1.0) as usize;
+            let m = y.len() / p;
+            if m >= 2 {
+                let mut avg = vec![0.0; p];
+                for k in 0..m * p {
+                    avg[k % p] += y[k] / m as f64;
+                }
+                let e: Vec<f64> = (0..m * p).map(|k| y[k] - avg[k % p]).collect();
+                // The deviation from a mean of m periods underestimates by √((m−1)/m).
+                return (analysis::rms(&e) * (m as f64 / (m as f64 - 1.0)).sqrt(), "period_to_period");
+            }
+            (second_difference_noise(y), "second_difference")
+        }
+        _ => (second_difference_noise(y), "second_difference"),
+    }
+}
+
+fn second_difference_noise(y: &[f64]) -> f64 {
+    if y.len() < 3 {
+        return 0.0;
+    }
+    let d: Vec<f64> = y.windows(3).map(|w| w[2] - 2.0 * w[1] + w[0]).collect();
+    analysis::rms(&d) / 6f64.sqrt()
+}
+
+/// `x` minus its least-squares cubic in time.
+fn detrend_cubic(x: &[f64]) -> Vec<f64> {
+    let n = x.len();
+    if n < 8 {
+        return detrend(x);
+    }
+    let half = (n - 1) as f64 / 2.0;
+    let mut ata = nalgebra::Matrix4::<f64>::zeros();
+    let mut atb = nalgebra::Vector4::<f64>::zeros();
+    for (k, &v) in x.iter().enumerate() {
+        let t = (k as f64 - half) / half;
+        let p = nalgebra::Vector4::new(1.0, t, t * t, t * t * t);
+        ata += p * p.transpose();
+        atb += p * v;
+    }
+    let Some(c) = ata.cholesky().map(|ch| ch.solve(&atb)) else { return detrend(x) };
+    x.iter()
+        .enumerate()
+        .map(|(k, &v)| {
+            let t = (k as f64 - half) / half;
+            v - (c[0] + t * (c[1] + t * (c[2] + t * c[3])))
+        })
+        .collect()
+}
+
+/// `x` minus its least-squares line.
+fn detrend(x: &[f64]) -> Vec<f64> {
+    let n = x.len();
+    if n < 3 {
+        return vec![0.0; n];
+    }
+    let mid = (n - 1) as f64 / 2.0;
+    let m = analysis::mean(x);
+    let (mut sxy, mut sxx) = (0.0, 0.0);
+    for (k, &v) in x.iter().enumerate() {
+        let t = k as f64 - mid;
+        sxy += t * (v - m);
+        sxx += t * t;
+    }
+    let slope = sxy / sxx.max(1e-300);
+    x.iter().enumerate().map(|(k, &v)| v - m - slope * (k as f64 - mid)).collect()
+}
+
+fn fmt_s(x: f64) -> String {
+    let s = format!("{x:.3}");
+    s.trim_end_matches('0').trim_end_matches('.').to_string()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::f64::consts::TAU;
+
+    fn sine(n: usize, f: f64, ts: f64, a: f64) -> Vec<f64> {
+        (0..n).map(|k| a * (TAU * f * k as f64 * ts).sin()).collect()
+    }
+
+    #[test]
+    fn kinds_of_drive() {
+        let ts = 1e-3;
+        let s = sine(5000, 23.0, ts, 1.0);
+        let d = classify(&s, ts);
+        assert_eq!(d.kind, DriveKind::Sine, "{d:?}");
+        assert!((d.freq_hz - 23.0).abs() < 1e-6 && d.thd < 1e-6);
+        // A sine with 3 % of its own 3rd harmonic is still a sine, and the 3rd is measured.
+        let dist: Vec<f64> =
+            (0..5000).map(|k| s[k] + 0.03 * (TAU * 69.0 * k as f64 * ts + 0.4).sin()).collect();
+        let d = classify(&dist, ts);
+        assert_eq!(d.kind, DriveKind::Sine);
+        assert!((d.harmonic_rel(3) - 0.03).abs() < 1e-4, "{}", d.harmonic_rel(3));
+        // A triangle and a square are periodic.
+        let tri: Vec<f64> = (0..5000)
+            .map(|k| (2.0 / std::f64::consts::PI) * (TAU * 7.0 * k as f64 * ts).sin().asin())
+            .collect();
+        let d = classify(&tri, ts);
+        assert_eq!(d.kind, DriveKind::Periodic, "{d:?}");
+        assert!((d.freq_hz - 7.0).abs() < 1e-3);
+        let sq: Vec<f64> = (0..5000).map(|k| (TAU * 4.0 * k as f64 * ts).sin().signum()).collect();
+        assert_eq!(classify(&sq, ts).kind, DriveKind::Periodic);
+        // An odd random-phase multisine of period 1024 samples.
+        let mut g = 7u64;
+        let mut rnd = || {
+            g ^= g << 13;
+            g ^= g >> 7;
+            g ^= g << 17;
+            (g >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let phases: Vec<f64> = (0..40).map(|_| TAU * rnd()).collect();
+        let ms: Vec<f64> = (0..8192)
+            .map(|k| {
+                (0..40).map(|l| (TAU * (2 * l + 1) as f64 * k as f64 / 1024.0 + phases[l]).sin()).sum::<f64>()
+                    * 0.1
+            })
+            .collect();
+        let d = classify(&ms, ts);
+        assert_eq!(d.kind, DriveKind::Multisine, "{}", d.describe());
+        assert_eq!(d.period_samples, Some(1024.0));
+        assert_eq!(d.lines.len(), 40);
+        assert!(d.lines.iter().all(|l| l.0 % 2 == 1));
+        // Noise and a chirp are aperiodic; a constant is none.
+        let noise: Vec<f64> = (0..8000).map(|_| rnd() - 0.5).collect();
+        assert_eq!(classify(&noise, ts).kind, DriveKind::Aperiodic);
+        let chirp: Vec<f64> =
+            (0..8000).map(|k| (TAU * (1.0 + 5.0 * k as f64 * ts) * k as f64 * ts).sin()).collect();
+        assert_eq!(classify(&chirp, ts).kind, DriveKind::Aperiodic, "{}", classify(&chirp, ts).describe());
+        assert_eq!(classify(&vec![0.3; 1000], ts).kind, DriveKind::None);
+    }
+
+    #[test]
+    fn idle_lead_in_step_on_and_lead_out_are_left_out() {
+        let ts = 1e-3;
+        // 3.3 s idle, the drive steps onto a sine at its peak (5 Hz, 1 V), 1 s idle at the end.
+        let mut u = vec![0.0; 3300];
+        u.extend((0..6000).map(|k| (TAU * 5.0 * k as f64 * ts + 1.5).sin()));
+        u.extend(vec![0.0; 1000]);
+        // The output rings at 300 Hz after the step, decaying in 0.1 s.
+        let y: Vec<f64> = (0..u.len())
+            .map(|k| {
+                let ring = if k >= 3300 {
+                    (-((k - 3300) as f64) * ts / 0.05).exp() * (TAU * 300.0 * k as f64 * ts).sin()
+                } else {
+                    0.0
+                };
+                10.0 * u[k] + 5.0 * ring
+            })
+            .collect();
+        let (w, drive) = steady_window(&u, &y, ts, None).unwrap();
+        assert_eq!(drive.kind, DriveKind::Sine);
+        assert!((3250..3300 + 100).contains(&w.drive_on), "{w:?}");
+        assert!(w.start >= 3300 + 150 && w.start < 3300 + 600, "{w:?}");
+        assert!(w.end <= 9300 && w.end > 9300 - 200, "{w:?}");
+        let periods = (w.end - w.start) as f64 / 200.0;
+        assert!((periods - periods.round()).abs() < 1e-9, "{periods}");
+        assert!(w.why.contains("drive steady from 3.29"), "{}", w.why);
+        assert!(w.why.contains("start-up transient"), "{}", w.why);
+    }
+
+    #[test]
+    fn an_amplitude_change_keeps_the_longer_level() {
+        let ts = 1e-3;
+        let mut u = sine(3000, 10.0, ts, 1.0);
+        u.extend(sine(6000, 10.0, ts, 2.0));
+        let y = u.clone();
+        let (w, _) = steady_window(&u, &y, ts, None).unwrap();
+        assert!(w.drive_on >= 2950 && w.drive_on <= 3100, "{w:?}");
+        assert!(w.end > 8800, "{w:?}");
+    }
+
+    #[test]
+    fn a_given_window_is_used_as_given_cut_to_whole_periods() {
+        let ts = 1e-3;
+        let u = sine(5000, 10.0, ts, 1.0);
+        let (w, d) = steady_window(&u, &u, ts, Some((1000, 3050))).unwrap();
+        assert_eq!((w.drive_on, w.start, w.end), (1000, 1000, 3000));
+        assert_eq!(d.kind, DriveKind::Sine);
+        assert!(w.given);
+    }
+}
