@@ -149,6 +149,24 @@ fn on_chip_in_process(design: &Path, samples: u32) -> Result<f64, String> {
     Ok((sq / (samples - settle) as f64).sqrt())
 }
 
+/// Runs a streaming step; on the on-chip actuator, once more if it fails. There the board's
+/// clock is QEMU's virtual clock alone, which does not wait for the host: when the machine's
+/// load stalls the host long enough, the board's 200 ms transmit queue fills and it drops
+/// frames (it says so, and the step fails). That is the emulator's clock, not the link or
+/// the firmware (with the host in the loop the board waits); the first failure stays in the
+/// log, and a second one fails the task.
+fn on_chip_retry(which: Which, step: impl Fn() -> Result<String, String>) -> Result<String, String> {
+    match step() {
+        Err(e) if which == Which::OnChip => {
+            eprintln!(
+                "xtask: {e}; once more (QEMU's virtual clock can outrun a host slowed by the machine's load)"
+            );
+            step()
+        }
+        r => r,
+    }
+}
+
 /// One actuator's excite → design → load → run; its JSON line.
 fn flow(bin: &Path, pty: &str, which: Which, dir: &Path) -> Result<serde_json::Value, String> {
     let name = if which == Which::OnChip { "on-chip" } else { "bimorph" };
@@ -161,7 +179,7 @@ fn flow(bin: &Path, pty: &str, which: Which, dir: &Path) -> Result<serde_json::V
     excite.extend(actuator);
     excite.extend(["--host-timeout-ms", HOST_TIMEOUT_MS]);
     excite.extend(["--sine", "23Hz:1V", "--seconds", EXCITE_SECONDS, "-o", &rec]);
-    cli(bin, &excite)?;
+    on_chip_retry(which, || cli(bin, &excite))?;
     let d = last_json(
         &cli(
             bin,
@@ -186,7 +204,7 @@ fn flow(bin: &Path, pty: &str, which: Which, dir: &Path) -> Result<serde_json::V
     r.extend(port);
     r.extend(actuator);
     r.extend(["--reference", "sine:23Hz:20um", "--seconds", &seconds, "-o", &run, "--json"]);
-    let out = cli(bin, &r)?;
+    let out = on_chip_retry(which, || cli(bin, &r))?;
     let v = last_json(&out, "board run")?;
     let samples = RUN_SECONDS * 1000;
     let inprocess = match which {
