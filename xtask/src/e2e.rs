@@ -409,14 +409,7 @@ fn crash(bin: &Path, board_pty: &str, dir: &Path) -> Result<serde_json::Value, S
     };
     let port = relay.finish()?;
     let mut link = Link::new(port);
-    link.flush_peer().map_err(|e| e.to_string())?;
-    let diag = link
-        .request(&Message::GetDiagnostics, 3, Duration::from_secs(2), |_, m| match m {
-            Message::Diagnostics(d) => Some(*d),
-            _ => None,
-        })
-        .map_err(|e| e.to_string())?
-        .ok_or("no diagnostics after the kill")?;
+    let diag = crate::session::diagnostics(&mut link, 3)?;
     if diag.drive_v != 0.0 {
         return Err(format!("after the safe state the drive is {} V", diag.drive_v));
     }

@@ -109,14 +109,7 @@ pub fn run(board: Board, json: bool) -> Vec<String> {
                 _ => {}
             }
         };
-        link.flush_peer().map_err(|e| e.to_string())?;
-        let d = link
-            .request(&Message::GetDiagnostics, 5, Duration::from_secs(2), |_, m| match m {
-                Message::Diagnostics(d) => Some(*d),
-                _ => None,
-            })
-            .map_err(|e| e.to_string())?
-            .ok_or("no diagnostics from the board")?;
+        let d = crate::session::diagnostics(&mut link, 5)?;
         drop(session);
         let tail = run.len().saturating_sub(10);
         Ok(Seen { run: run[tail..].to_vec(), ramp, reason, reset_cause: d.reset_cause, period_us })

@@ -3,6 +3,7 @@
 use crate::tools::{self, Board, QEMU};
 use boucwen_hal::transport::{self, Link};
 use boucwen_link::Message;
+use boucwen_link::message::Diagnostics;
 use std::io::{BufRead, BufReader};
 use std::path::Path;
 use std::process::{Child, Stdio};
@@ -84,4 +85,16 @@ pub fn request_ok<P: transport::Port>(link: &mut Link<P>, m: &Message) -> Result
         Some(Err(e)) => Err(format!("the board refused kind 0x{want:02x}: {e}")),
         None => Err(format!("no answer to kind 0x{want:02x}")),
     }
+}
+
+/// The board's diagnostics, after dropping what it still had to send (`tries` requests, 2 s
+/// each).
+pub fn diagnostics<P: transport::Port>(link: &mut Link<P>, tries: u32) -> Result<Diagnostics, String> {
+    link.flush_peer().map_err(|e| e.to_string())?;
+    link.request(&Message::GetDiagnostics, tries, Duration::from_secs(2), |_, m| match m {
+        Message::Diagnostics(d) => Some(*d),
+        _ => None,
+    })
+    .map_err(|e| e.to_string())?
+    .ok_or_else(|| "no diagnostics from the board".to_string())
 }

@@ -146,14 +146,7 @@ pub fn run(board: Board, burst: u32, json: bool) -> Vec<String> {
             None => SAMPLES,
         };
         let bytes_per_ms = run.rx_bad as f64 * burst_bytes as f64 / burst.max(1) as f64 / span_ticks as f64;
-        link.flush_peer().map_err(|e| e.to_string())?;
-        let d = link
-            .request(&Message::GetDiagnostics, 5, Duration::from_secs(2), |_, m| match m {
-                Message::Diagnostics(d) => Some(*d),
-                _ => None,
-            })
-            .map_err(|e| e.to_string())?
-            .ok_or("no diagnostics from the board")?;
+        let d = crate::session::diagnostics(&mut link, 5)?;
         Ok((d, seen.telemetry, run, span_ticks, bytes_per_ms))
     };
     let (d, telemetry, run, span_ticks, run_bytes_per_ms) = match go() {
