@@ -13,6 +13,7 @@
 //! | [`experiment`] | closed-loop runs of the compensator and the peers |
 //! | [`sweep`] | the paper's Figs. 10 and 16 on the virtual bimorph |
 //! | [`diagnose`] | what a model gets wrong on a record, the cause, the term that fixes it |
+//! | [`terms`] | terms beyond the fitted model (saturation, input delay, creep, stiffening) and their joint refinement |
 //! | [`report`], [`plot`] | files, pages and SVG figures |
 //! | `hidden`, `messy` (feature `fixtures`) | records of the virtual bimorph with a hidden effect, and written as bench records come, for tests and benches |
 
@@ -30,3 +31,4 @@ pub mod record;
 pub mod report;
 pub mod steady;
 pub mod sweep;
+pub mod terms;
