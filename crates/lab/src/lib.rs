@@ -7,6 +7,7 @@
 //! |---|---|
 //! | [`record`] | measured records on disk (CSV), [`record::Replay`] as a plant |
 //! | [`analysis`] | spectra, harmonics, whole periods |
+//! | [`excitation`] | periodic excitations: odd random-phase multisines, triangles |
 //! | [`steady`] | the drive's kind and the steady window of a record |
 //! | [`fit`] | identification: the paper's RLS and output error |
 //! | [`design`] | an identified model (or a plant) to the board's parameters |
@@ -15,11 +16,14 @@
 //! | [`diagnose`] | what a model gets wrong on a record, the cause, the term that fixes it |
 //! | [`terms`] | terms beyond the fitted model (saturation, input delay, creep, stiffening) and their joint refinement |
 //! | [`report`], [`plot`] | files, pages and SVG figures |
-//! | `hidden`, `messy` (feature `fixtures`) | records of the virtual bimorph with a hidden effect, and written as bench records come, for tests and benches |
+//! | `hidden`, `messy`, `effects` (feature `fixtures`) | records of the virtual bimorph with a hidden effect (harmonics and drift; saturation, creep, delay, two at once; periodic and multisine drives with a hidden odd or even nonlinearity), and written as bench records come, for tests and benches |
 
 pub mod analysis;
 pub mod design;
 pub mod diagnose;
+#[cfg(feature = "fixtures")]
+pub mod effects;
+pub mod excitation;
 pub mod experiment;
 pub mod fit;
 #[cfg(feature = "fixtures")]
