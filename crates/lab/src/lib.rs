@@ -15,11 +15,13 @@
 //! | [`sweep`] | the paper's Figs. 10 and 16 on the virtual bimorph |
 //! | [`diagnose`] | what a model gets wrong on a record, the cause, the term that fixes it |
 //! | [`distortion`] | periodic and multisine drives: lines of whole periods, the BLA, noise and distortion levels at odd and even non-excited lines |
+//! | [`causes`] | the causes a sine diagnosis tries beyond harmonics and drift (saturation, creep, input delay): their evidence and fits |
 //! | [`terms`] | terms beyond the fitted model (saturation, input delay, creep, stiffening) and their joint refinement |
 //! | [`report`], [`plot`] | files, pages and SVG figures |
 //! | `hidden`, `messy`, `effects` (feature `fixtures`) | records of the virtual bimorph with a hidden effect (harmonics and drift; saturation, creep, delay, two at once; periodic and multisine drives with a hidden odd or even nonlinearity), and written as bench records come, for tests and benches |
 
 pub mod analysis;
+pub mod causes;
 pub mod design;
 pub mod diagnose;
 pub mod distortion;

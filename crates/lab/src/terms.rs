@@ -73,9 +73,31 @@ pub struct Terms {
     pub stiffening: Vec<Stiffening>,
     /// Reference deflection of the stiffening (µm; set when a stiffening is added).
     pub q_ref_um: f64,
+    /// The range `[lo, hi]` (s) the creep's time constants are kept in by [`refine`].
+    pub creep_tau_range_s: [f64; 2],
 }
 
 impl Terms {
+    /// The input as the host model sees it before its own delay: clamped at the input
+    /// saturation and shifted by the extra delay.
+    pub fn input(&self, u: &[f64]) -> Vec<f64> {
+        let n = u.len();
+        let clamped: Vec<f64> = match self.input_clamp {
+            Some([lo, hi]) => u.iter().map(|v| v.clamp(lo.min(hi), hi.max(lo))).collect(),
+            None => u.to_vec(),
+        };
+        if self.extra_delay == 0 {
+            return clamped;
+        }
+        (0..n).map(|k| if k >= self.extra_delay { clamped[k - self.extra_delay] } else { 0.0 }).collect()
+    }
+
+    /// Whether every term acts on the input only (saturation of the drive, extra delay): a
+    /// host model is then fitted to [`Terms::input`] by [`crate::fit::fit_oe`] directly.
+    pub fn input_only(&self) -> bool {
+        self.output_clamp.is_none() && self.creep.is_empty() && self.stiffening.is_empty()
+    }
+
     /// Whether there is no term.
     pub fn is_empty(&self) -> bool {
         self.input_clamp.is_none()
@@ -139,16 +161,7 @@ impl TermModel {
         }
         let t = &self.terms;
         let n = u.len();
-        let clamped: Vec<f64> = match t.input_clamp {
-            Some([lo, hi]) => u.iter().map(|v| v.clamp(lo.min(hi), hi.max(lo))).collect(),
-            None => u.to_vec(),
-        };
-        let shifted: Vec<f64> = if t.extra_delay > 0 {
-            (0..n).map(|k| if k >= t.extra_delay { clamped[k - t.extra_delay] } else { 0.0 }).collect()
-        } else {
-            clamped
-        };
-        let ud = delayed(&shifted, self.host.delay);
+        let ud = delayed(&t.input(u), self.host.delay);
         let host = &self.host;
         let bw = host.ext.bw;
         let [a1, a2] = host.ext.ar;
@@ -297,6 +310,20 @@ impl TermModel {
             && free.iter().all(|&p| self.get(p).is_finite())
     }
 
+    /// Moves the parameters onto their bounds: the host's delay into `[0, 3]` samples, the
+    /// creep's gains to at least 0 (creep adds to the deflection) and its time constants
+    /// into [`Terms::creep_tau_range_s`].
+    fn project(&mut self) {
+        self.host.delay = self.host.delay.clamp(0.0, crate::fit::MAX_DELAY);
+        let [lo, hi] = self.terms.creep_tau_range_s;
+        for c in &mut self.terms.creep {
+            c.gain = c.gain.max(0.0);
+            if lo > 0.0 && hi >= lo {
+                c.tau_s = c.tau_s.clamp(lo, hi);
+            }
+        }
+    }
+
     /// The parameters of the host model a refinement moves: structure, loop, gains, drift
     /// and branch weights (not the delay, which only the delay term frees).
     pub fn host_params(&self) -> Vec<Param> {
@@ -335,8 +362,10 @@ fn residual(m: &TermModel, free: &[Param], u: &[f64], y: &[f64], ts: f64, c: &Cr
 }
 
 /// Refines `start` by Levenberg–Marquardt over the parameters `free` on the free-run error
-/// over the criterion (see the module docs). Returns the refined model and its RMS over the
-/// criterion, or `None` if `start` itself cannot be evaluated.
+/// over the criterion (see the module docs), each step projected onto the parameters' bounds
+/// (a delay in `[0, 3]` samples, creep gains at least 0, creep time constants in their
+/// range). Returns the refined model and its RMS over the criterion, or `None` if `start`
+/// itself cannot be evaluated.
 pub fn refine(
     start: &TermModel,
     free: &[Param],
@@ -394,6 +423,7 @@ pub fn refine(
             for (i, &p) in free.iter().enumerate() {
                 cand.set(p, model.get(p) + delta[i]);
             }
+            cand.project();
             match residual(&cand, free, u, y, ts, &c) {
                 Some(rc) => {
                     let cc: f64 = rc.iter().map(|v| v * v).sum();
