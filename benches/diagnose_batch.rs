@@ -104,6 +104,10 @@ fn args() -> Result<Args, String> {
     Ok(a)
 }
 
+/// One record's outcome: the hidden effect, whether the diagnosis named it, its gain (%),
+/// the report line, and what [`carried`] measures.
+type Outcome = (Effect, bool, f64, String, f64);
+
 fn main() {
     let a = match args() {
         Ok(a) => a,
@@ -123,7 +127,7 @@ fn main() {
         })
         .collect();
     let start = Instant::now();
-    let results: Vec<Result<(Effect, bool, f64, String, f64), String>> = jobs
+    let results: Vec<Result<Outcome, String>> = jobs
         .par_iter()
         .map(|&(effect, seed)| {
             let case = Case::generate(effect, seed).map_err(|e| format!("{} {seed}: {e}", effect.name()))?;
@@ -149,7 +153,7 @@ fn main() {
         })
         .collect();
     let wall = start.elapsed().as_secs_f64();
-    let mut ok: Vec<(Effect, bool, f64, String, f64)> = Vec::new();
+    let mut ok: Vec<Outcome> = Vec::new();
     for r in results {
         match r {
             Ok(v) => ok.push(v),

@@ -20,6 +20,8 @@
 //! noise (so both branches occur), and for the compensator a closed-loop record of an
 //! enhanced plant with a third harmonic.
 
+use rand_core::{RngCore, SeedableRng};
+use rand_xoshiro::Xoshiro256PlusPlus;
 use std::hint::black_box;
 use std::time::Duration;
 
@@ -42,16 +44,14 @@ const DRIVE_HZ: f64 = 23.0;
 /// cycled input stays a continuous 23 Hz signal.
 const LEN: usize = 4000;
 
-/// SplitMix64: seeded, reproducible noise in `[-1, 1)`.
-struct SplitMix(u64);
-impl SplitMix {
+/// Seeded, reproducible noise in `[-1, 1)` from the project's one generator (xoshiro256++).
+struct Noise(Xoshiro256PlusPlus);
+impl Noise {
+    fn new(seed: u64) -> Self {
+        Self(Xoshiro256PlusPlus::seed_from_u64(seed))
+    }
     fn next_f64(&mut self) -> f64 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^= z >> 31;
-        (z >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
+        (self.0.next_u64() >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
     }
 }
 
@@ -91,14 +91,14 @@ fn enhanced3<T: Real>() -> EnhancedParams<T, 2, 2, 1> {
 /// Drive in volts: 1.5 V at 23 Hz (the loop's `h` saturates at ±1.3) plus ±10 mV noise.
 fn drive_signal() -> Vec<f64> {
     let mut sine = Sine::new(1.5, drive());
-    let mut noise = SplitMix(0xB0C_3E11);
+    let mut noise = Noise::new(0xB0C_3E11);
     (0..LEN).map(|_| sine.next_sample() + 0.01 * noise.next_f64()).collect()
 }
 
 /// Persistently exciting regression data for `N` parameters: uniform regressors in
 /// `[-1, 1)`, `y = θ*ᵀx + noise`.
 fn regression<const N: usize>(seed: u64) -> Vec<([f64; N], f64)> {
-    let mut g = SplitMix(seed);
+    let mut g = Noise::new(seed);
     let truth: [f64; N] = core::array::from_fn(|i| 0.5 + i as f64 * 0.25);
     (0..LEN)
         .map(|_| {

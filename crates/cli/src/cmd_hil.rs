@@ -17,6 +17,7 @@
 //! controller reaches in-process without a link. Exits non-zero when a sample is not
 //! accounted for or a command differs from the host's shadow controller.
 
+use anyhow::{anyhow, bail};
 use boucwen_core::compensator::Saturation;
 use boucwen_hal::hil::{self, HilOptions};
 use boucwen_lab::design::{PlantDesign, design_on_plant};
@@ -57,48 +58,43 @@ pub struct HilArgs {
 /// Seconds of the identification record.
 const IDENT_SECONDS: f64 = 6.0;
 
-pub fn run(a: HilArgs) -> Result<(), String> {
+pub fn run(a: HilArgs) -> anyhow::Result<()> {
     if a.samples < 1000 {
-        return Err(format!("--samples {}: at least 1000", a.samples));
+        bail!("--samples {}: at least 1000", a.samples);
     }
     let rate = a.inject_faults.unwrap_or(0.0);
     if !(rate.is_finite() && (0.0..0.5).contains(&rate)) {
-        return Err(format!("--inject-faults {rate}: a fraction of bytes from 0 to below 0.5"));
+        bail!("--inject-faults {rate}: a fraction of bytes from 0 to below 0.5");
     }
     let scenario = match &a.scenario {
-        Some(p) => Scenario::from_path(p).map_err(|e| e.to_string())?,
+        Some(p) => Scenario::from_path(p)?,
         None => Scenario::default(),
     };
     let ts = scenario.sampling.ts_s;
     if !(a.freq.is_finite() && a.freq > 0.0 && 2.0 * a.freq < 0.5 / ts) {
-        return Err(format!("--freq {}: above 0 and below a quarter of the sample rate", a.freq));
+        bail!("--freq {}: above 0 and below a quarter of the sample rate", a.freq);
     }
     if !(a.amplitude.is_finite() && a.amplitude > 0.0 && a.amplitude <= 100.0) {
-        return Err(format!("--amplitude {}: above 0 and at most 100 V", a.amplitude));
+        bail!("--amplitude {}: above 0 and at most 100 V", a.amplitude);
     }
-    let mut bimorph = Bimorph::new(&scenario).map_err(|e| e.to_string())?;
     let spec = PlantDesign {
         freq_hz: a.freq,
         amplitude_v: a.amplitude,
         seconds: IDENT_SECONDS,
         saturation: Saturation::symmetric(10.0),
     };
-    let design = design_on_plant(&mut bimorph, &spec)
-        .map_err(|e| format!("designing on the virtual bimorph at {} Hz: {e}", a.freq))?;
+    let design = design_on_plant(&mut Bimorph::new(&scenario)?, &spec)
+        .map_err(|e| anyhow!("designing on the virtual bimorph at {} Hz: {e}", a.freq))?;
     eprintln!("{design}");
     let params = design.params;
     let opts = HilOptions { fault_rate: rate, seed: a.seed, ..HilOptions::new(a.samples) };
-    let sim = |s: &Scenario| Bimorph::new(s).map_err(|e| e.to_string());
-    let ideal = hil::without_link(&mut sim(&scenario)?, &params, a.samples, opts.settle_samples)
-        .map_err(|e| e.to_string())?;
-    let mut plant = sim(&scenario)?;
-    let report = hil::run_on_port(&a.port, a.baud, &mut plant, &params, &opts)
-        .map_err(|e| format!("{}: {e}", a.port))?;
+    let ideal = hil::without_link(&mut Bimorph::new(&scenario)?, &params, a.samples, opts.settle_samples)?;
+    let report = hil::run_on_port(&a.port, a.baud, &mut Bimorph::new(&scenario)?, &params, &opts)
+        .map_err(|e| anyhow!("{}: {e}", a.port))?;
     println!("{}", report.summary());
     println!("tracking RMSE of the same controller in-process, without the link: {ideal:.4} µm");
-    let verdict = report.verdict();
     if a.json {
-        println!("{}", report.json());
+        println!("{}", serde_json::to_string(&report.json_summary())?);
     }
-    verdict.map_err(|e| format!("{}: {e}", a.port))
+    report.verdict().map_err(|e| anyhow!("{}: {e}", a.port))
 }

@@ -195,7 +195,7 @@ pub fn run(a: IdentifyArgs) -> Result<(), String> {
 fn standing_out(y: &[f64], f: f64, ts: f64) -> u32 {
     let n = analysis::whole_periods(y.len(), f, ts);
     let amp = analysis::harmonics(&y[..n], f, ts, 1).first().map_or(0.0, |t| t.amp);
-    sweep::dominant_odd_harmonic(&y[..n], f, ts, 0.0, sweep::MIN_HARMONIC_REL * amp)
+    analysis::dominant_odd_harmonic(&y[..n], f, ts, 0.0, sweep::MIN_HARMONIC_REL * amp)
         .map(|(order, _)| order)
         .filter(|&o| o <= diagnose::MAX_TERM_ORDER && f64::from(o) * f < 0.5 / ts)
         .unwrap_or(3)

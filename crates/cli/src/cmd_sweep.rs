@@ -1,8 +1,9 @@
 //! `boucwen sweep`: the paper's identification and compensation experiments over a frequency
 //! range on the virtual bimorph.
 
+use boucwen_lab::design::ResponseSource;
 use boucwen_lab::report;
-use boucwen_lab::sweep::{self, HarmonicChoice, ResponseSource, SweepOptions};
+use boucwen_lab::sweep::{self, HarmonicChoice, SweepOptions};
 use boucwen_sim::Scenario;
 use clap::ValueEnum;
 use std::io::IsTerminal;
@@ -57,29 +58,13 @@ pub struct SweepArgs {
     json: bool,
 }
 
-fn frequencies(from: f64, to: f64, step: f64) -> Result<Vec<f64>, String> {
-    if !(from.is_finite() && to.is_finite() && step.is_finite()) {
-        return Err("--from, --to and --step must be finite numbers".into());
-    }
-    if from <= 0.0 || step <= 0.0 || to < from {
-        return Err(format!(
-            "need 0 < --from <= --to and --step > 0 (got --from {from} --to {to} --step {step})"
-        ));
-    }
-    let n = ((to - from) / step + 1e-9).floor() as usize + 1;
-    if n > 10_000 {
-        return Err(format!("{n} frequencies is too many (at most 10000)"));
-    }
-    Ok((0..n).map(|i| ((from + i as f64 * step) * 1e9).round() / 1e9).collect())
-}
-
-pub fn run(a: SweepArgs) -> Result<(), String> {
+pub fn run(a: SweepArgs) -> anyhow::Result<()> {
     let scenario = match &a.scenario {
-        Some(p) => Scenario::from_path(p).map_err(|e| e.to_string())?,
+        Some(p) => Scenario::from_path(p)?,
         None => Scenario::default(),
     };
     let mut opts = SweepOptions::paper(a.seconds);
-    opts.freqs = frequencies(a.from, a.to, a.step)?;
+    opts.freqs = sweep::frequencies(a.from, a.to, a.step)?;
     opts.scenario = scenario;
     opts.harmonics = match a.harmonics {
         Harmonics::Auto => HarmonicChoice::Auto,
@@ -103,13 +88,13 @@ pub fn run(a: SweepArgs) -> Result<(), String> {
             b.inc(1);
         }
     };
-    let result = sweep::run(&opts, &tick).map_err(|e| e.to_string())?;
+    let result = sweep::run(&opts, &tick)?;
     if let Some(b) = &bar {
         b.finish_and_clear();
     }
-    let files = report::write_sweep(&result, &a.out).map_err(|e| e.to_string())?;
+    let files = report::write_sweep(&result, &a.out)?;
     if a.json {
-        println!("{}", sweep_json(&result, &files));
+        println!("{}", serde_json::to_string(&result.summary(&files))?);
     } else {
         print_table(&result);
         eprintln!("wrote {} files to {}", files.len(), a.out.display());
@@ -169,58 +154,5 @@ fn print_table(r: &sweep::SweepResult) {
             w.rmse_pi_um,
             w.rmse_orc_um
         );
-    }
-}
-
-fn num(x: f64) -> serde_json::Value {
-    serde_json::Number::from_f64(x).map_or(serde_json::Value::Null, serde_json::Value::Number)
-}
-
-fn sweep_json(r: &sweep::SweepResult, files: &[PathBuf]) -> serde_json::Value {
-    let rows: Vec<serde_json::Value> = r
-        .rows
-        .iter()
-        .map(|w| {
-            serde_json::json!({
-                "freq_hz": num(w.freq_hz),
-                "rms_extended_um": num(w.rms_extended_um),
-                "rms_enhanced_um": num(w.rms_enhanced_um),
-                "rmse_uf_um": num(w.rmse_uf_um),
-                "rmse_proposed_um": num(w.rmse_proposed_um),
-                "rmse_open_um": num(w.rmse_open_um),
-                "rmse_pi_um": num(w.rmse_pi_um),
-                "rmse_orc_um": num(w.rmse_orc_um),
-                "harmonic_order": w.harmonic_order,
-                "cancel_order": w.cancel_order,
-                "cancel_order_oe": w.cancel_order_oe,
-                "alpha_um": num(w.alpha_um),
-                "rms_extended_oe_um": num(w.rms_extended_oe_um),
-                "rms_enhanced_oe_um": num(w.rms_enhanced_oe_um),
-                "rmse_uf_oe_um": num(w.rmse_uf_oe_um),
-                "rmse_proposed_oe_um": num(w.rmse_proposed_oe_um),
-            })
-        })
-        .collect();
-    serde_json::json!({
-        "structure_resonance_hz": r.structure.resonance_hz.map(num),
-        "rows": rows,
-        "files": files.iter().map(|p| p.display().to_string()).collect::<Vec<_>>(),
-        "wall_s": num(r.wall_s),
-        "actuator_s": num(r.actuator_s),
-        "speedup": num(r.speedup()),
-    })
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn frequency_lists() {
-        assert_eq!(frequencies(1.0, 3.0, 1.0).unwrap(), vec![1.0, 2.0, 3.0]);
-        assert_eq!(frequencies(1.0, 2.0, 0.3).unwrap(), vec![1.0, 1.3, 1.6, 1.9]);
-        assert!(frequencies(0.0, 3.0, 1.0).is_err());
-        assert!(frequencies(3.0, 1.0, 1.0).is_err());
-        assert!(frequencies(1.0, 3.0, f64::NAN).is_err());
     }
 }

@@ -47,13 +47,14 @@ fn main() -> ExitCode {
     let result = match cli.command {
         Command::Sweep(a) => cmd_sweep::run(a),
         Command::Simulate(a) => cmd_simulate::run(a),
-        Command::Identify(a) => cmd_identify::run(a),
-        Command::Diagnose(a) => cmd_diagnose::run(a),
+        Command::Identify(a) => cmd_identify::run(a).map_err(anyhow::Error::msg),
+        Command::Diagnose(a) => cmd_diagnose::run(a).map_err(anyhow::Error::msg),
         Command::Hil(a) => cmd_hil::run(a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
+            // The libraries' errors name their cause in their own message; one line.
             eprintln!("boucwen: {e}");
             ExitCode::FAILURE
         }

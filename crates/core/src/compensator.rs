@@ -63,6 +63,7 @@
 //! reference known ahead (a planned trajectory, a sine), [`Compensator::step_previewed`]
 //! inverts for `d` at `k + τ` and measures the tracking error against `d[k]`.
 
+use crate::controllers::{ControlOutput, Controller};
 use crate::error::finite;
 use crate::model::{BoucWenParams, ExtendedParams, push_front};
 use crate::rls::{Rls, RlsConfig};
@@ -81,6 +82,13 @@ pub struct Saturation<T> {
 
 impl<T: Real> Saturation<T> {
     /// A symmetric range `±limit`.
+    ///
+    /// ```
+    /// use boucwen_core::compensator::Saturation;
+    /// let s = Saturation::symmetric(10.0_f64);
+    /// assert_eq!((s.u_min, s.u_max), (-10.0, 10.0));
+    /// assert_eq!(s.clamp(12.0), (10.0, true));
+    /// ```
     pub fn symmetric(limit: T) -> Self {
         Self { u_min: -limit, u_max: limit }
     }
@@ -163,6 +171,19 @@ pub struct DirectInverse<T, const P: usize> {
 impl<T: Real, const P: usize> DirectInverse<T, P> {
     /// The inverse of `model`, with `d_min` = 10⁻³·|A1 - A| (or the smallest normal number if
     /// that is zero).
+    ///
+    /// ```
+    /// use boucwen_core::compensator::{DirectInverse, InverseState, Saturation};
+    /// use boucwen_core::model::{BoucWenParams, ExtendedParams};
+    /// let model = ExtendedParams { bw: BoucWenParams { a1: 20.0_f64, a: 6.0, a0: 0.0, gamma: 2.0, beta: 3.0 },
+    ///                              ar: [0.5] };
+    /// let inv = DirectInverse::new(model)?;
+    /// assert!((inv.d_min - 0.014).abs() < 1e-12);
+    /// let mut st = InverseState::default();
+    /// let step = inv.step(&mut st, 7.0, &Saturation::symmetric(10.0));
+    /// assert!((step.u_f - 0.5).abs() < 1e-12); // y = A1·u - A·u = 14·0.5 from rest
+    /// # Ok::<(), boucwen_core::Error>(())
+    /// ```
     pub fn new(model: ExtendedParams<T, P>) -> Result<Self, Error> {
         use crate::model::Model;
         model.validate()?;
@@ -265,6 +286,7 @@ pub struct CompensatorConfig<T, const P: usize, const M: usize> {
 
 impl<T: Real, const P: usize, const M: usize> CompensatorConfig<T, P, M> {
     /// Checks every part.
+    #[allow(clippy::neg_cmp_op_on_partial_ord, reason = "NaN must fail the checks, as `!(x > 0)` does")]
     pub fn validate(&self) -> Result<(), Error> {
         use crate::model::Model;
         self.model.validate()?;
@@ -320,6 +342,28 @@ pub struct Compensator<T: Real, const P: usize, const M: usize> {
 
 impl<T: Real, const P: usize, const M: usize> Compensator<T, P, M> {
     /// A compensator from a validated configuration.
+    ///
+    /// ```
+    /// use boucwen_core::compensator::{Compensator, CompensatorConfig, HarmonicSpec, Saturation};
+    /// use boucwen_core::model::{BoucWenParams, ExtendedParams};
+    /// use boucwen_core::rls::RlsConfig;
+    /// use boucwen_core::signal::Oscillator;
+    /// use nalgebra::Complex;
+    /// let mut cfg = CompensatorConfig {
+    ///     model: ExtendedParams { bw: BoucWenParams { a1: 20.0, a: 6.0, a0: 0.5, gamma: 2.0, beta: 3.0 },
+    ///                             ar: [1.5, -0.6] },
+    ///     drive: Oscillator::new(23.0, 1e-3)?,
+    ///     harmonics: [HarmonicSpec { order: 3, response: Complex::new(0.5, -2.0) }],
+    ///     rls: RlsConfig::with_forgetting(0.999, 1e-2),
+    ///     saturation: Saturation::symmetric(10.0),
+    ///     uc_max: 2.0,
+    /// };
+    /// let mut c = Compensator::new(cfg)?;
+    /// assert_eq!(c.step(0.0, None)?.u, 0.0);
+    /// cfg.harmonics[0].order = 1; // the fundamental is u_f's job
+    /// assert!(Compensator::new(cfg).is_err());
+    /// # Ok::<(), boucwen_core::Error>(())
+    /// ```
     pub fn new(cfg: CompensatorConfig<T, P, M>) -> Result<Self, Error> {
         cfg.validate()?;
         let inverse = DirectInverse::new(cfg.model)?;
@@ -412,11 +456,165 @@ impl<T: Real, const P: usize, const M: usize> Compensator<T, P, M> {
     }
 }
 
+impl<T: Real, const P: usize, const M: usize> Controller<T> for Compensator<T, P, M> {
+    /// [`Compensator::step`] in the shared form: `u_ff` is the direct inverse `u_f`, `u_rc`
+    /// the cancellation as applied (`-Σ û_n`), no feedback part.
+    #[inline]
+    fn step(&mut self, d: T, y_prev: Option<T>) -> Result<ControlOutput<T>, Error> {
+        let o = Compensator::step(self, d, y_prev)?;
+        Ok(o.into())
+    }
+
+    fn reset(&mut self) {
+        Compensator::reset(self);
+    }
+}
+
+impl<T: Real> From<CompensatorOutput<T>> for ControlOutput<T> {
+    fn from(o: CompensatorOutput<T>) -> Self {
+        ControlOutput { u: o.u, u_ff: o.u_f, u_fb: T::zero(), u_rc: -o.u_c, saturated: o.saturated }
+    }
+}
+
+/// The most harmonics an [`AnyCompensator`] cancels at once.
+pub const MAX_CANCELLED: usize = 2;
+
+/// A compensator whose number of cancelled harmonics (0 to [`MAX_CANCELLED`]) is known only
+/// at run time: the one place where that count becomes the const generic `M` of
+/// [`Compensator`]. No allocation; it is as large as the two-harmonic compensator.
+///
+/// ```
+/// use boucwen_core::compensator::{AnyCompensator, CompensatorConfig, HarmonicSpec, Saturation};
+/// use boucwen_core::model::{BoucWenParams, ExtendedParams};
+/// use boucwen_core::rls::RlsConfig;
+/// use boucwen_core::signal::Oscillator;
+/// use nalgebra::Complex;
+/// let base = CompensatorConfig {
+///     model: ExtendedParams { bw: BoucWenParams { a1: 20.0_f64, a: 6.0, a0: 0.5, gamma: 2.0, beta: 3.0 },
+///                             ar: [1.5, -0.6] },
+///     drive: Oscillator::new(23.0, 1e-3)?,
+///     harmonics: [],
+///     rls: RlsConfig::with_forgetting(0.999, 1e-2),
+///     saturation: Saturation::symmetric(10.0),
+///     uc_max: 2.0,
+/// };
+/// let third = HarmonicSpec { order: 3, response: Complex::new(0.5, -2.0) };
+/// let mut c = AnyCompensator::new(base, &[third])?;
+/// assert_eq!(c.harmonic_count(), 1);
+/// let out = c.step_previewed(1.0, 1.0, None)?;
+/// assert!(out.u.is_finite());
+/// assert!(AnyCompensator::new(base, &[third; 3]).is_err());
+/// # Ok::<(), boucwen_core::Error>(())
+/// ```
+#[derive(Clone, Debug)]
+pub enum AnyCompensator<T: Real, const P: usize> {
+    /// `u_f` alone.
+    Zero(Compensator<T, P, 0>),
+    /// One cancelled harmonic.
+    One(Compensator<T, P, 1>),
+    /// Two cancelled harmonics.
+    Two(Compensator<T, P, 2>),
+}
+
+/// Calls `$body` with `$c` bound to the compensator inside any variant.
+macro_rules! each {
+    ($any:expr, $c:ident => $body:expr) => {
+        match $any {
+            AnyCompensator::Zero($c) => $body,
+            AnyCompensator::One($c) => $body,
+            AnyCompensator::Two($c) => $body,
+        }
+    };
+}
+
+impl<T: Real, const P: usize> AnyCompensator<T, P> {
+    /// The compensator of `base` (everything but the harmonics) cancelling `harmonics`
+    /// (at most [`MAX_CANCELLED`]), validated.
+    ///
+    /// See the type's example; more than [`MAX_CANCELLED`] harmonics is an error:
+    /// ```
+    /// use boucwen_core::compensator::{AnyCompensator, CompensatorConfig, HarmonicSpec, Saturation};
+    /// use boucwen_core::model::ExtendedParams;
+    /// use boucwen_core::rls::RlsConfig;
+    /// use boucwen_core::signal::Oscillator;
+    /// let mut model = ExtendedParams::<f64, 1>::default();
+    /// model.bw.a1 = 1.0;
+    /// let base = CompensatorConfig { model, drive: Oscillator::new(10.0, 1e-3)?, harmonics: [],
+    ///     rls: RlsConfig::paper(), saturation: Saturation::symmetric(1.0), uc_max: 1.0 };
+    /// assert_eq!(AnyCompensator::new(base, &[])?.harmonic_count(), 0);
+    /// # Ok::<(), boucwen_core::Error>(())
+    /// ```
+    pub fn new(base: CompensatorConfig<T, P, 0>, harmonics: &[HarmonicSpec<T>]) -> Result<Self, Error> {
+        fn with<T: Real, const P: usize, const M: usize>(
+            base: CompensatorConfig<T, P, 0>,
+            harmonics: &[HarmonicSpec<T>],
+        ) -> Result<Compensator<T, P, M>, Error> {
+            let CompensatorConfig { model, drive, rls, saturation, uc_max, .. } = base;
+            let harmonics = core::array::from_fn(|m| harmonics[m]);
+            Compensator::new(CompensatorConfig { model, drive, harmonics, rls, saturation, uc_max })
+        }
+        Ok(match harmonics.len() {
+            0 => Self::Zero(with(base, harmonics)?),
+            1 => Self::One(with(base, harmonics)?),
+            2 => Self::Two(with(base, harmonics)?),
+            _ => return Err(Error::OutOfRange("harmonic count (at most 2 are cancelled at once)")),
+        })
+    }
+
+    /// The number of cancelled harmonics.
+    pub fn harmonic_count(&self) -> usize {
+        match self {
+            Self::Zero(_) => 0,
+            Self::One(_) => 1,
+            Self::Two(_) => 2,
+        }
+    }
+
+    /// [`Compensator::step`].
+    #[inline]
+    pub fn step(&mut self, d: T, y_prev: Option<T>) -> Result<CompensatorOutput<T>, Error> {
+        each!(self, c => c.step(d, y_prev))
+    }
+
+    /// [`Compensator::step_previewed`].
+    #[inline]
+    pub fn step_previewed(
+        &mut self,
+        d: T,
+        d_ahead: T,
+        y_prev: Option<T>,
+    ) -> Result<CompensatorOutput<T>, Error> {
+        each!(self, c => c.step_previewed(d, d_ahead, y_prev))
+    }
+
+    /// [`Compensator::weights`].
+    pub fn weights(&self, m: usize) -> Option<(T, T)> {
+        each!(self, c => c.weights(m))
+    }
+
+    /// [`Compensator::reset`].
+    pub fn reset(&mut self) {
+        each!(self, c => c.reset())
+    }
+}
+
+impl<T: Real, const P: usize> Controller<T> for AnyCompensator<T, P> {
+    #[inline]
+    fn step(&mut self, d: T, y_prev: Option<T>) -> Result<ControlOutput<T>, Error> {
+        Ok(AnyCompensator::step(self, d, y_prev)?.into())
+    }
+
+    fn reset(&mut self) {
+        AnyCompensator::reset(self);
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::model::{EnhancedParams, HarmonicBranch, Model};
     use crate::signal::Sine;
+    use std::boxed::Box;
 
     const TS: f64 = 1e-3;
 
@@ -517,6 +715,64 @@ mod tests {
         assert!(r < 0.01, "RMS error {r} of the amplitude");
         // The inverse is exact for the model it was built from: only rounding remains.
         assert!(r < 1e-9, "RMS error {r} of the amplitude");
+    }
+
+    #[test]
+    fn the_controller_trait_and_any_compensator_step_as_the_compensator_does() {
+        let p = plant();
+        let plant3 = EnhancedParams::<f64, 2, 0, 1> {
+            base: p,
+            branches: [HarmonicBranch { order: 3, alpha_s: 0.10, alpha_c: -0.06, ar: [] }],
+            drive: Oscillator::new(23.0, TS).unwrap(),
+        };
+        let g3 = harmonic_response(&p, 3, 23.0, TS, PhaseRule::Model);
+        let specs = [HarmonicSpec { order: 3, response: g3 }];
+        let base = config(p, 23.0, []);
+        for count in 0..=MAX_CANCELLED {
+            let harmonics = [specs[0], HarmonicSpec { order: 5, ..specs[0] }];
+            let chosen = &harmonics[..count];
+            let mut any = AnyCompensator::new(base, chosen).unwrap();
+            assert_eq!(any.harmonic_count(), count);
+            let mut dynamic: Box<dyn Controller<f64>> = Box::new(AnyCompensator::new(base, chosen).unwrap());
+            let mut reference: Box<dyn FnMut(f64, Option<f64>) -> CompensatorOutput<f64>> = match count {
+                0 => {
+                    let mut c = Compensator::new(base).unwrap();
+                    Box::new(move |d, y| c.step(d, y).unwrap())
+                }
+                1 => {
+                    let mut c = Compensator::new(config(p, 23.0, [harmonics[0]])).unwrap();
+                    Box::new(move |d, y| c.step(d, y).unwrap())
+                }
+                _ => {
+                    let mut c = Compensator::new(config(p, 23.0, harmonics)).unwrap();
+                    Box::new(move |d, y| c.step(d, y).unwrap())
+                }
+            };
+            let mut s = plant3.initial_state();
+            let mut d = Sine::new(20.0, base.drive);
+            let mut y_prev = None;
+            let mut moved = 0.0f64;
+            for _ in 0..3000 {
+                let dk = d.next_sample();
+                let want = reference(dk, y_prev);
+                let got = any.step(dk, y_prev).unwrap();
+                let shared = dynamic.step(dk, y_prev).unwrap();
+                assert_eq!(got, want);
+                assert_eq!(shared, ControlOutput::from(want));
+                if !shared.saturated {
+                    // u = u_f - Σ û_n: the parts add up to the output.
+                    assert!((shared.u - (shared.u_ff + shared.u_rc)).abs() < 1e-12, "{shared:?}");
+                }
+                moved = moved.max(want.u_c.abs());
+                let y = plant3.step(&mut s, want.u);
+                y_prev = Some(y);
+            }
+            assert_eq!(moved > 0.0, count > 0, "{count} harmonics: cancellation reached {moved}");
+            if count > 0 {
+                assert!(any.weights(count - 1).is_some() && any.weights(count).is_none());
+            }
+        }
+        assert!(AnyCompensator::new(base, &[specs[0]; 3]).is_err());
     }
 
     #[test]

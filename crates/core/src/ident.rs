@@ -95,6 +95,13 @@ pub struct IdentConfig<T, const N: usize> {
 impl<T: Real, const N: usize> IdentConfig<T, N> {
     /// The paper's section 3: running sums, `P(0) = I`, no forgetting, `A1 = 0.01`,
     /// `A = 0.005`, `γ = 0.001`, `β = 0.001`, all else 0. `P` is the AR order.
+    ///
+    /// ```
+    /// use boucwen_core::ident::{IdentConfig, Mode};
+    /// let cfg = IdentConfig::<f64, 7>::paper::<2>(); // θ = [a1, a2, A1, A, A0, β, γ]
+    /// assert_eq!(cfg.mode, Mode::Paper);
+    /// assert_eq!((cfg.theta0[2], cfg.theta0[3], cfg.theta0[5]), (0.01, 0.005, 0.001));
+    /// ```
     pub fn paper<const P: usize>() -> Self {
         let mut theta0 = SVector::<T, N>::zeros();
         if N >= P + 5 {
@@ -112,6 +119,13 @@ impl<T: Real, const N: usize> IdentConfig<T, N> {
     /// use `lambda < 1` (0.9995 at 1 kHz recovers exact parameters from a minute of rich
     /// data in this crate's tests) and excitation that is richer than one sine when the
     /// parameters themselves matter.
+    ///
+    /// ```
+    /// use boucwen_core::ident::{IdentConfig, Mode};
+    /// let cfg = IdentConfig::<f64, 7>::gradient::<2>(0.9995, 1.0);
+    /// assert_eq!((cfg.mode, cfg.rls.lambda), (Mode::Gradient, 0.9995));
+    /// assert_eq!(cfg.theta0, IdentConfig::<f64, 7>::paper::<2>().theta0);
+    /// ```
     pub fn gradient<const P: usize>(lambda: T, p0: T) -> Self {
         let paper = Self::paper::<P>();
         Self { mode: Mode::Gradient, rls: RlsConfig::with_forgetting(lambda, p0), theta0: paper.theta0 }
@@ -172,6 +186,17 @@ impl<T: Real, const P: usize, const Q: usize, const M: usize, const N: usize> Id
 
     /// A new identifier. `drive` is the excitation frequency `f` (used by the branches);
     /// `orders` are the branches' harmonic orders (each `≥ 2`).
+    ///
+    /// See the type's example for a full identification. Harmonic orders start at 2:
+    /// ```
+    /// use boucwen_core::ident::{IdentConfig, Identifier};
+    /// use boucwen_core::signal::Oscillator;
+    /// let drive = Oscillator::new(23.0, 1e-3)?;
+    /// let cfg = IdentConfig::<f64, 9>::paper::<2>();
+    /// assert!(Identifier::<f64, 2, 0, 1, 9>::new(cfg, drive, [3]).is_ok());
+    /// assert!(Identifier::<f64, 2, 0, 1, 9>::new(cfg, drive, [1]).is_err());
+    /// # Ok::<(), boucwen_core::Error>(())
+    /// ```
     pub fn new(cfg: IdentConfig<T, N>, drive: Oscillator, orders: [u32; M]) -> Result<Self, Error> {
         let () = Self::LAYOUT_OK;
         if orders.iter().any(|&n| n < 2) {
@@ -238,14 +263,12 @@ impl<T: Real, const P: usize, const Q: usize, const M: usize, const N: usize> Id
             x[P + 1 + i] = -sens[i];
         }
         let mut sc = [(T::zero(), T::zero()); M];
-        for m in 0..M {
+        for (m, scm) in sc.iter_mut().enumerate() {
             let base = Layout::<P, Q>::branch(m);
-            for j in 0..Q {
-                x[base + j] = self.branch_past[m][j];
-            }
-            sc[m] = sin_cos::<T>(self.phase.wrapping_mul(self.orders[m] as u64));
-            x[base + Q] = sc[m].0;
-            x[base + Q + 1] = sc[m].1;
+            x.as_mut_slice()[base..base + Q].copy_from_slice(&self.branch_past[m]);
+            *scm = sin_cos::<T>(self.phase.wrapping_mul(self.orders[m] as u64));
+            x[base + Q] = scm.0;
+            x[base + Q + 1] = scm.1;
         }
 
         // Prediction with the current estimate.
@@ -258,7 +281,7 @@ impl<T: Real, const P: usize, const Q: usize, const M: usize, const N: usize> Id
         for j in 0..P {
             y_hat += th[j] * self.y_past[j];
         }
-        for m in (0..M).map(|m| Layout::<P, Q>::branch(m)) {
+        for m in (0..M).map(Layout::<P, Q>::branch) {
             for j in 0..Q + 2 {
                 y_hat += th[m + j] * x[m + j];
             }
@@ -276,9 +299,9 @@ impl<T: Real, const P: usize, const Q: usize, const M: usize, const N: usize> Id
             Mode::Gradient => h_pred,
         };
         self.sens = sens;
-        for m in 0..M {
+        for (m, &(s, c)) in sc.iter().enumerate() {
             let base = Layout::<P, Q>::branch(m);
-            let mut yn = th[base + Q] * sc[m].0 + th[base + Q + 1] * sc[m].1;
+            let mut yn = th[base + Q] * s + th[base + Q + 1] * c;
             for j in 0..Q {
                 yn += th[base + j] * self.branch_past[m][j];
             }

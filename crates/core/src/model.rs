@@ -87,10 +87,16 @@ impl<T: Real> BoucWenParams<T> {
 }
 
 impl<T: Real> BoucWenParams<T> {
-    /// The range `[h_lo, h_hi]` that `h` cannot leave once inside (0 is inside): with
-    /// `γ + β > 0` each branch saturates where its slope vanishes,
-    /// `h_hi = (A + A0)/(γ + β)` rising and `h_lo = -(A - A0)/(γ + β)` falling. `None` when
-    /// `γ + β ≤ 0` (`h` is unbounded).
+    /// The range `[h_lo, h_hi]` where each branch saturates (its slope vanishes):
+    /// `h_hi = (A + A0)/(γ + β)` rising and `h_lo = -(A - A0)/(γ + β)` falling, 0 inside.
+    /// `None` when `γ + β ≤ 0` (`h` is unbounded).
+    ///
+    /// `h` cannot leave the range once inside when `A ≥ |A0|`, `γ, β ≥ 0`, either `A0 = 0`
+    /// or `β ≥ γ`, and each step of the input is at most `1/(γ + β)` (then every update is
+    /// a convex combination of `h` and an end of the range; the property tests check it).
+    /// With `γ > β` and `A0 ≠ 0` one branch's slope turns negative inside the range and an
+    /// input moving along that branch carries `h` out of it without bound.
+    #[allow(clippy::neg_cmp_op_on_partial_ord, reason = "NaN must fail the check, as `!(s > 0)` does")]
     pub fn h_range(&self) -> Option<(T, T)> {
         let s = self.gamma + self.beta;
         if !(s > T::zero()) {
@@ -195,6 +201,12 @@ impl<T: Real, const P: usize> Default for ExtendedParams<T, P> {
 
 impl<T: Real> ExtendedParams<T, 3> {
     /// Eq. (3) as printed: `y[k] = y[k-1] + c1·y[k-2] + c2·y[k-3] + A1·u[k] - h[k]`.
+    ///
+    /// ```
+    /// use boucwen_core::model::{BoucWenParams, ExtendedParams};
+    /// let m = ExtendedParams::from_eq3(BoucWenParams::<f64>::default(), 0.2, -0.3);
+    /// assert_eq!(m.ar, [1.0, 0.2, -0.3]);
+    /// ```
     pub fn from_eq3(bw: BoucWenParams<T>, c1: T, c2: T) -> Self {
         Self { bw, ar: [T::one(), c1, c2] }
     }
@@ -205,8 +217,8 @@ impl<T: Real, const P: usize> ExtendedParams<T, P> {
     #[inline(always)]
     pub fn ar_sum(&self, past: &[T; P]) -> T {
         let mut acc = T::zero();
-        for j in 0..P {
-            acc += self.ar[j] * past[j];
+        for (&a, &y) in self.ar.iter().zip(past) {
+            acc += a * y;
         }
         acc
     }
@@ -331,6 +343,12 @@ pub struct HarmonicBranch<T, const Q: usize> {
 
 impl<T: Real, const Q: usize> HarmonicBranch<T, Q> {
     /// A branch of order `n` with zero weights.
+    ///
+    /// ```
+    /// use boucwen_core::model::HarmonicBranch;
+    /// let b = HarmonicBranch::<f64, 2>::new(3);
+    /// assert_eq!((b.order, b.alpha_s, b.alpha_c, b.ar), (3, 0.0, 0.0, [0.0; 2]));
+    /// ```
     pub fn new(order: u32) -> Self {
         Self { order, alpha_s: T::zero(), alpha_c: T::zero(), ar: [T::zero(); Q] }
     }
@@ -379,8 +397,8 @@ impl<T: Real, const P: usize, const Q: usize, const M: usize> Model<T> for Enhan
             let (s, c) = sin_cos::<T>(state.phase.wrapping_mul(br.order as u64));
             let past = &mut state.branch_past[m];
             let mut yn = br.alpha_s * s + br.alpha_c * c;
-            for j in 0..Q {
-                yn += br.ar[j] * past[j];
+            for (&c, &p) in br.ar.iter().zip(past.iter()) {
+                yn += c * p;
             }
             push_front(past, yn);
             state.branch_out[m] = yn;

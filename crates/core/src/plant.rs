@@ -88,6 +88,17 @@ pub struct ModelPlant<T: Real, M: Model<T>> {
 
 impl<T: Real, M: Model<T>> ModelPlant<T, M> {
     /// The model at rest, sampled every `ts_s` seconds (finite, > 0).
+    ///
+    /// ```
+    /// use boucwen_core::model::ExtendedParams;
+    /// use boucwen_core::plant::{ModelPlant, Plant};
+    /// let mut model = ExtendedParams::<f64, 1>::default();
+    /// model.bw.a1 = 2.0;
+    /// let mut p = ModelPlant::new(model, 1e-3)?;
+    /// assert_eq!(p.step(0.5)?, 1.0);
+    /// assert!(ModelPlant::new(model, 0.0).is_err());
+    /// # Ok::<(), boucwen_core::Error>(())
+    /// ```
     pub fn new(model: M, ts_s: T) -> Result<Self, Error> {
         if !(ts_s.is_finite() && ts_s > T::zero()) {
             return Err(Error::OutOfRange("sample interval (must be finite and > 0)"));

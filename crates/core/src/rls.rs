@@ -49,16 +49,31 @@ pub struct RlsConfig<T> {
 
 impl<T: Real> RlsConfig<T> {
     /// The paper's setting: `λ = 1`, `P(0) = I`.
+    ///
+    /// ```
+    /// use boucwen_core::rls::RlsConfig;
+    /// let c = RlsConfig::<f64>::paper();
+    /// assert_eq!((c.lambda, c.p0), (1.0, 1.0));
+    /// assert!(c.validate().is_ok());
+    /// ```
     pub fn paper() -> Self {
         Self { lambda: T::one(), p0: T::one(), p_max: T::lit(1e3) }
     }
 
     /// Forgetting factor `lambda`, `P(0) = p0·I`, windup ceiling `p_max = 10³·p0`.
+    ///
+    /// ```
+    /// use boucwen_core::rls::RlsConfig;
+    /// let c = RlsConfig::with_forgetting(0.999_f64, 1e-2);
+    /// assert_eq!((c.lambda, c.p0, c.p_max), (0.999, 1e-2, 10.0));
+    /// assert!(RlsConfig::with_forgetting(1.5_f64, 1.0).validate().is_err());
+    /// ```
     pub fn with_forgetting(lambda: T, p0: T) -> Self {
         Self { lambda, p0, p_max: T::lit(1e3) * p0 }
     }
 
     /// Checks the ranges.
+    #[allow(clippy::neg_cmp_op_on_partial_ord, reason = "NaN must fail the checks, as `!(x > 0)` does")]
     pub fn validate(&self) -> Result<(), Error> {
         if !self.lambda.is_finite() {
             return Err(Error::NonFinite("forgetting factor"));
@@ -319,20 +334,7 @@ fn all_finite<T: Real, const N: usize>(v: &[T; N]) -> bool {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::testing::assert_close;
-
-    /// A small deterministic generator (SplitMix64) for test data.
-    pub(crate) struct Lcg(pub u64);
-    impl Lcg {
-        pub fn next_f64(&mut self) -> f64 {
-            self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-            let mut z = self.0;
-            z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-            z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-            z ^= z >> 31;
-            (z >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
-        }
-    }
+    use crate::testing::{Noise, assert_close};
 
     /// Textbook covariance-form RLS on plain arrays, written independently of the U-D code.
     struct Textbook<const N: usize> {
@@ -350,19 +352,19 @@ mod tests {
         }
         fn update(&mut self, x: &[f64; N], y: f64) {
             let mut px = [0.0; N];
-            for i in 0..N {
-                for j in 0..N {
-                    px[i] += self.p[i][j] * x[j];
+            for (pxi, row) in px.iter_mut().zip(&self.p) {
+                for (pij, xj) in row.iter().zip(x) {
+                    *pxi += pij * xj;
                 }
             }
             let denom = self.lambda + (0..N).map(|i| x[i] * px[i]).sum::<f64>();
             let e = y - (0..N).map(|i| self.theta[i] * x[i]).sum::<f64>();
-            for i in 0..N {
-                self.theta[i] += px[i] / denom * e;
+            for (th, pxi) in self.theta.iter_mut().zip(&px) {
+                *th += pxi / denom * e;
             }
-            for i in 0..N {
-                for j in 0..N {
-                    self.p[i][j] = (self.p[i][j] - px[i] * px[j] / denom) / self.lambda;
+            for (row, pxi) in self.p.iter_mut().zip(&px) {
+                for (pij, pxj) in row.iter_mut().zip(&px) {
+                    *pij = (*pij - pxi * pxj / denom) / self.lambda;
                 }
             }
         }
@@ -372,7 +374,7 @@ mod tests {
     fn recovers_linear_regression_parameters_to_1e_9() {
         let truth = SVector::<f64, 7>::from_column_slice(&[1.3, -0.7, 25.0, 0.004, -3.5, 0.0, 2.0]);
         let mut rls = Rls::new(RlsConfig::with_forgetting(1.0, 1e8), SVector::zeros()).unwrap();
-        let mut g = Lcg(1);
+        let mut g = Noise::new(1);
         for _ in 0..2000 {
             let x = SVector::<f64, 7>::from_fn(|_, _| g.next_f64());
             rls.update(&x, truth.dot(&x)).unwrap();
@@ -387,7 +389,7 @@ mod tests {
         const N: usize = 5;
         let mut rls = Rls::new(RlsConfig::with_forgetting(0.98, 10.0), SVector::zeros()).unwrap();
         let mut tb = Textbook::<N>::new(10.0, 0.98);
-        let mut g = Lcg(7);
+        let mut g = Noise::new(7);
         for k in 0..3000 {
             let xa: [f64; N] = core::array::from_fn(|_| g.next_f64());
             let y = 2.0 * xa[0] - xa[1] + 0.5 * xa[4] + 0.1 * g.next_f64();
@@ -431,7 +433,7 @@ mod tests {
         // without the guard P grows as λ^-k along (1, 1).
         let cfg = RlsConfig { lambda: 0.99, p0: 1.0, p_max: 100.0 };
         let mut rls = Rls::new(cfg, SVector::<f64, 2>::zeros()).unwrap();
-        let mut g = Lcg(3);
+        let mut g = Noise::new(3);
         for _ in 0..100_000 {
             let u = g.next_f64();
             rls.update(&SVector::<f64, 2>::new(u, -u), 2.0 * u).unwrap();
@@ -444,7 +446,7 @@ mod tests {
         assert_close(rls.theta()[0] - rls.theta()[1], 2.0, 1e-9);
         // A textbook update without the guard does wind up on the same data.
         let mut tb = Textbook::<2>::new(1.0, 0.99);
-        let mut g = Lcg(3);
+        let mut g = Noise::new(3);
         for _ in 0..3000 {
             let u = g.next_f64();
             tb.update(&[u, -u], 2.0 * u);
@@ -475,7 +477,7 @@ mod tests {
         let mut r64 = Rls::<f64, N>::new(cfg64, SVector::zeros()).unwrap();
         let mut r32 = Rls::<f32, N>::new(cfg32, SVector::zeros()).unwrap();
         let truth = [1.6, -0.8, 0.5, 0.2, -0.1];
-        let mut g = Lcg(11);
+        let mut g = Noise::new(11);
         let (mut y1, mut y2, mut u1, mut u2) = (0.0, 0.0, 0.0, 0.0);
         let mut worst: f64 = 0.0;
         for k in 0..1_000_000 {
@@ -492,8 +494,8 @@ mod tests {
             }
         }
         assert!(worst < 1e-3, "largest f32/f64 parameter gap {worst}");
-        for i in 0..N {
-            assert_close(r64.theta()[i], truth[i], 2e-3);
+        for (est, want) in r64.theta().iter().zip(&truth) {
+            assert_close(*est, *want, 2e-3);
         }
         assert_eq!(r32.stats().resets, 0);
     }

@@ -34,6 +34,14 @@ impl Oscillator {
     /// The oscillator for `freq_hz` at sample interval `ts_s`.
     ///
     /// `freq_hz` must be in `[0, 1/(2 ts_s)]` (zero up to Nyquist) and `ts_s > 0`.
+    ///
+    /// ```
+    /// use boucwen_core::signal::Oscillator;
+    /// let osc = Oscillator::new(250.0, 1e-3)?; // a quarter turn per sample
+    /// assert_eq!(osc.increment(), 1u64 << 62);
+    /// assert!(Oscillator::new(600.0, 1e-3).is_err()); // above Nyquist
+    /// # Ok::<(), boucwen_core::Error>(())
+    /// ```
     pub fn new(freq_hz: f64, ts_s: f64) -> Result<Self, Error> {
         if !freq_hz.is_finite() {
             return Err(Error::NonFinite("frequency"));
@@ -54,6 +62,12 @@ impl Oscillator {
     }
 
     /// An oscillator with a raw phase increment (2⁻⁶⁴ turn per sample).
+    ///
+    /// ```
+    /// use boucwen_core::signal::Oscillator;
+    /// assert_eq!(Oscillator::from_increment(1 << 62), Oscillator::new(250.0, 1e-3)?);
+    /// # Ok::<(), boucwen_core::Error>(())
+    /// ```
     pub const fn from_increment(increment: u64) -> Self {
         Self { increment }
     }
@@ -64,6 +78,13 @@ impl Oscillator {
     }
 
     /// The oscillator at `n` times this frequency (exactly coherent with it).
+    ///
+    /// ```
+    /// use boucwen_core::signal::Oscillator;
+    /// let osc = Oscillator::new(23.0, 1e-3)?;
+    /// assert_eq!(osc.harmonic(3).phase_at(7), osc.phase_at(21));
+    /// # Ok::<(), boucwen_core::Error>(())
+    /// ```
     pub const fn harmonic(&self, n: u32) -> Self {
         Self { increment: self.increment.wrapping_mul(n as u64) }
     }
@@ -132,6 +153,14 @@ pub struct Sine<T> {
 
 impl<T: Real> Sine<T> {
     /// A sinusoid starting at phase 0.
+    ///
+    /// ```
+    /// use boucwen_core::signal::{Oscillator, Sine};
+    /// let mut s = Sine::new(3.0_f64, Oscillator::new(250.0, 1e-3)?);
+    /// assert_eq!(s.next_sample(), 0.0);
+    /// assert!((s.next_sample() - 3.0).abs() < 1e-15);
+    /// # Ok::<(), boucwen_core::Error>(())
+    /// ```
     pub fn new(amplitude: T, osc: Oscillator) -> Self {
         Self { amplitude, osc, phase: 0 }
     }

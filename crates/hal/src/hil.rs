@@ -35,6 +35,7 @@ use crate::transport::{FaultCounts, Link, LinkStats, Port, TransportError};
 use boucwen_core::Plant;
 use boucwen_link::device::{Controller, Reference};
 use boucwen_link::message::{ControllerParams, Fault, Message, Mode, RunState, Status};
+use serde::Serialize;
 use std::fmt;
 use std::time::{Duration, Instant};
 
@@ -540,19 +541,49 @@ where
     run(&mut link, plant, params, opts)
 }
 
+/// The figures of a run that `boucwen hil --json` prints as its last line (`cargo xtask hil`
+/// and CI read these keys).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct HilSummary {
+    /// Samples run.
+    pub samples: u32,
+    /// Samples accounted for ([`HilReport::samples_accounted`]).
+    pub samples_accounted: u32,
+    /// Frames rejected by their checks, host and board together.
+    pub corrupted_frames: u64,
+    /// Frames that vanished, both sides.
+    pub lost_frames: u64,
+    /// Tracking RMSE, µm (`null` if not finite).
+    pub rmse_um: Option<f64>,
+}
+
+/// What is wrong with a run ([`HilReport::verdict`]): every problem found, in order.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Verdict(pub Vec<String>);
+
+impl fmt::Display for Verdict {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(&self.0.join("; "))
+    }
+}
+
+impl std::error::Error for Verdict {}
+
 impl HilReport {
-    /// The summary line of `--json`.
-    pub fn json(&self) -> String {
-        let rmse = if self.rmse_um.is_finite() { format!("{}", self.rmse_um) } else { "null".into() };
-        format!(
-            "{{\"samples\": {}, \"samples_accounted\": {}, \"corrupted_frames\": {}, \"lost_frames\": {}, \"rmse_um\": {rmse}}}",
-            self.samples, self.samples_accounted, self.corrupted_frames, self.lost_frames
-        )
+    /// The figures of `--json`.
+    pub fn json_summary(&self) -> HilSummary {
+        HilSummary {
+            samples: self.samples,
+            samples_accounted: self.samples_accounted,
+            corrupted_frames: self.corrupted_frames,
+            lost_frames: self.lost_frames,
+            rmse_um: self.rmse_um.is_finite().then_some(self.rmse_um),
+        }
     }
 
     /// `Ok` when every sample is accounted for, the shadow agrees with every command and
     /// the accounting found nothing wrong; otherwise what is wrong.
-    pub fn verdict(&self) -> Result<(), String> {
+    pub fn verdict(&self) -> Result<(), Verdict> {
         let mut bad = self.problems.clone();
         if self.samples_accounted != self.samples {
             bad.push(format!("{} of {} samples accounted for", self.samples_accounted, self.samples));
@@ -563,7 +594,7 @@ impl HilReport {
         if self.shadow_mismatches > 0 {
             bad.push(format!("{} commands differ from the host's shadow controller", self.shadow_mismatches));
         }
-        if bad.is_empty() { Ok(()) } else { Err(bad.join("; ")) }
+        if bad.is_empty() { Ok(()) } else { Err(Verdict(bad)) }
     }
 
     /// A human-readable summary, one fact per line.
@@ -706,6 +737,16 @@ mod tests {
         let ideal = without_link(&mut model_plant(), &params(), 3000, opts.settle_samples).unwrap();
         assert!((r.rmse_um - ideal).abs() < 1e-9, "{} vs {ideal}", r.rmse_um);
         assert!(r.rmse_um < 0.5, "{}", r.rmse_um);
+        assert!(r.verdict().is_ok());
+        // The JSON line's keys, which `cargo xtask hil` and CI read.
+        let j = serde_json::to_value(r.json_summary()).unwrap();
+        let keys: Vec<&str> = j.as_object().unwrap().keys().map(String::as_str).collect();
+        assert_eq!(keys.len(), 5);
+        for k in ["samples", "samples_accounted", "corrupted_frames", "lost_frames", "rmse_um"] {
+            assert!(keys.contains(&k), "{k} in {keys:?}");
+        }
+        assert_eq!(j["samples"], 3000);
+        assert_eq!(j["rmse_um"].as_f64(), Some(r.rmse_um));
     }
 
     #[test]

@@ -19,6 +19,8 @@ use boucwen_core::Plant;
 use boucwen_link::frame::{SeqGap, SeqTracker};
 use boucwen_link::message::{Mode, PlantParams, kind};
 use boucwen_link::{self as wire, Decoder, Message, Packet, WireError};
+use rand_core::{RngCore, SeedableRng};
+use rand_xoshiro::Xoshiro256PlusPlus;
 use std::collections::VecDeque;
 use std::fmt;
 use std::io::{self, Read, Write};
@@ -172,23 +174,18 @@ impl Port for MemoryPort {
     }
 }
 
-/// SplitMix64 then xorshift: the fault injector's seeded generator.
+/// The fault injector's seeded generator: the project's one generator, xoshiro256++.
 #[derive(Clone, Debug)]
-struct Rng(u64);
+struct Rng(Xoshiro256PlusPlus);
 
 impl Rng {
     fn new(seed: u64) -> Self {
-        let mut z = seed.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        Self((z ^ (z >> 31)) | 1)
+        Self(Xoshiro256PlusPlus::seed_from_u64(seed))
     }
     fn next(&mut self) -> u64 {
-        self.0 ^= self.0 >> 12;
-        self.0 ^= self.0 << 25;
-        self.0 ^= self.0 >> 27;
-        self.0.wrapping_mul(0x2545_F491_4F6C_DD1D)
+        self.0.next_u64()
     }
+    /// Uniform in `[0, 1)`.
     fn unit(&mut self) -> f64 {
         (self.next() >> 11) as f64 / (1u64 << 53) as f64
     }
@@ -510,8 +507,20 @@ pub enum BoardError {
     },
     /// The link failed.
     Link(TransportError),
-    /// The board refused a request, or did not answer it.
-    Refused(String),
+    /// The board refused a request.
+    Refused {
+        /// The port.
+        port: String,
+        /// The board's fault text.
+        fault: String,
+    },
+    /// The board did not answer a request.
+    NoAnswer {
+        /// The port.
+        port: String,
+        /// The request: `Stop`, or the kind byte of the message.
+        request: Request,
+    },
     /// No measurement came back for a sample after every attempt.
     NoMeasurement {
         /// The sample.
@@ -528,7 +537,11 @@ impl fmt::Display for BoardError {
                 write!(f, "sample {sample}: the command u is not finite")
             }
             BoardError::Link(e) => write!(f, "{e}"),
-            BoardError::Refused(text) => f.write_str(text),
+            BoardError::Refused { port, fault } => write!(f, "{port}: the board refused: {fault}"),
+            BoardError::NoAnswer { port, request: Request::Stop } => write!(f, "{port}: no answer to Stop"),
+            BoardError::NoAnswer { port, request: Request::Kind(kind) } => {
+                write!(f, "{port}: no answer to message 0x{kind:02x}")
+            }
             BoardError::NoMeasurement { sample, attempts } => {
                 write!(f, "sample {sample}: no measurement after {attempts} attempts")
             }
@@ -543,6 +556,15 @@ impl std::error::Error for BoardError {
             _ => None,
         }
     }
+}
+
+/// A request to the board that went unanswered.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Request {
+    /// `Stop`.
+    Stop,
+    /// A configuration message of this kind byte.
+    Kind(u8),
 }
 
 impl From<TransportError> for BoardError {
@@ -576,7 +598,7 @@ impl<P: Port> BoardPlant<P> {
         link.request(&Message::Stop, attempts, timeout, |_, m| {
             matches!(m, Message::Status(_)).then_some(())
         })?
-        .ok_or_else(|| BoardError::Refused(format!("{name}: no answer to Stop")))?;
+        .ok_or_else(|| BoardError::NoAnswer { port: name.clone(), request: Request::Stop })?;
         for (msg, want) in [
             (Message::SetPlant(self.params.clone()), kind::SET_PLANT),
             (Message::Start { mode: Mode::Plant, samples: 0 }, kind::START),
@@ -589,10 +611,10 @@ impl<P: Port> BoardPlant<P> {
             match answer {
                 Some(Ok(())) => {}
                 Some(Err(text)) => {
-                    return Err(BoardError::Refused(format!("{name}: the board refused: {text}")));
+                    return Err(BoardError::Refused { port: name.clone(), fault: text });
                 }
                 None => {
-                    return Err(BoardError::Refused(format!("{name}: no answer to message 0x{want:02x}")));
+                    return Err(BoardError::NoAnswer { port: name.clone(), request: Request::Kind(want) });
                 }
             }
         }

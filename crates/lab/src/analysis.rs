@@ -134,7 +134,7 @@ pub fn spectrum(x: &[f64], ts: f64) -> (Vec<f64>, Vec<f64>) {
 pub fn estimate_drive(u: &[f64], ts: f64) -> Option<f64> {
     let (freqs, amps) = spectrum(u, ts);
     let (peak, &a) = amps.iter().enumerate().skip(1).max_by(|a, b| a.1.total_cmp(b.1))?;
-    if !(a > 0.0) {
+    if a.is_nan() || a <= 0.0 {
         return None;
     }
     let df = freqs.get(1).copied()?;
@@ -158,6 +158,22 @@ pub fn estimate_drive(u: &[f64], ts: f64) -> Option<f64> {
         }
     }
     Some(0.5 * (lo + hi))
+}
+
+/// The dominant odd harmonic (order ≥ 3, below Nyquist) of `x`, if it holds at least
+/// `min_share` of `x`'s power and has an amplitude of at least `min_amp`.
+pub fn dominant_odd_harmonic(x: &[f64], f: f64, ts: f64, min_share: f64, min_amp: f64) -> Option<(u32, f64)> {
+    let power = rms(x).powi(2);
+    let kmax = ((0.5 / ts) / f).floor() as usize;
+    harmonics(x, f, ts, kmax.min(40))
+        .iter()
+        .enumerate()
+        .map(|(i, t)| ((i + 1) as u32, t.amp))
+        .filter(|(n, _)| n % 2 == 1 && *n >= 3)
+        .map(|(n, amp)| (n, amp * amp / 2.0 / power.max(1e-300), amp))
+        .max_by(|a, b| a.1.total_cmp(&b.1))
+        .filter(|&(_, share, amp)| share >= min_share && amp >= min_amp)
+        .map(|(n, share, _)| (n, share))
 }
 
 #[cfg(test)]

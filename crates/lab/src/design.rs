@@ -13,9 +13,13 @@
 //!   extended model with an invertible loop, α from eq. (25), a trial run of `u_f` alone,
 //!   and the odd harmonic that stands out in its tracking error cancelled with the model's
 //!   response at `n·f`.
+//!
+//! The rule that picks the cancelled harmonic ([`cancelled_harmonic`]) and the sources of
+//! the actuator's response at `n·f` ([`ResponseSource`], [`probe_response_on`]) are the
+//! same for `boucwen hil` and for every frequency of the sweep ([`crate::sweep`]).
 
 use crate::fit::{self, FitError, HostModel, ModelSpec, OeOptions};
-use crate::{analysis, experiment, sweep};
+use crate::{analysis, experiment};
 use boucwen_core::compensator::{HarmonicSpec, PhaseRule, Saturation};
 use boucwen_core::controllers::{OrcConfig, PiConfig};
 use boucwen_core::model::{BoucWenParams, ExtendedParams};
@@ -25,6 +29,7 @@ use boucwen_core::{Error, Plant};
 use boucwen_link::device::Controller;
 use boucwen_link::message::{ControllerParams, MAX_AR, MAX_HARMONICS, OrcParams};
 use nalgebra::Complex;
+use std::error::Error as StdError;
 use std::fmt;
 
 /// The reference of a control run, as [`controller_params`] takes it.
@@ -139,28 +144,111 @@ pub fn orc_params(pi: &PiConfig<f64>, orc: &OrcConfig<f64>) -> Result<OrcParams,
     })
 }
 
+/// Smallest share of the error power a harmonic must hold to be chosen, for a model's
+/// branch ([`crate::sweep`]) and for the cancellation alike.
+pub const MIN_HARMONIC_SHARE: f64 = 0.2;
+/// Smallest amplitude of a harmonic the proposed law cancels, relative to `α`: a change of
+/// controller must be worth its side effects (the cancellation input passes through the
+/// loop and leaves a little at other frequencies).
+pub const MIN_CANCEL_REL: f64 = 0.05;
+
+/// The harmonic the proposed law cancels, from the tracking error under `u_f` alone (the
+/// paper's Fig. 13 reasoning): the odd harmonic (order ≥ 3) of `freq_hz` holding the
+/// largest share of `error`'s power, if that share is at least [`MIN_HARMONIC_SHARE`] and
+/// its amplitude at least [`MIN_CANCEL_REL`] of `|α|`.
+pub fn cancelled_harmonic(error: &[f64], freq_hz: f64, ts: f64, alpha_um: f64) -> Option<u32> {
+    analysis::dominant_odd_harmonic(error, freq_hz, ts, MIN_HARMONIC_SHARE, MIN_CANCEL_REL * alpha_um.abs())
+        .map(|(n, _)| n)
+}
+
+/// Where the harmonic cancellation takes the actuator's response at `n·f` from.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum ResponseSource {
+    /// The identified model's frequency response (small-signal structure, with the delay).
+    Model,
+    /// The paper's table (eqs. 22/23): 0 below the flip frequency, π above.
+    Table {
+        /// The flip frequency (Hz; 66 in the paper).
+        flip_hz: f64,
+    },
+    /// The response identified at the operating point: the identification drive plus a
+    /// small probe at `n·f` ([`probe_response_on`]), for [`PROBE_SECONDS`].
+    Probe,
+}
+
+/// Length of a probe run (s).
+pub const PROBE_SECONDS: f64 = 3.0;
+/// Probe amplitude relative to the drive amplitude.
+pub const PROBE_REL: f64 = 0.01;
+
+/// The actuator's incremental response at `order·f` at its operating point: `plant` (fresh,
+/// or reset, so that it answers `u_drive` with `y_drive`) runs `u_drive` plus a probe of
+/// amplitude `eps` at `order·f`; the difference from `y_drive` at that frequency over the
+/// second half, divided by the probe, is the response
+/// ([`experiment::probe_response`]).
+pub fn probe_response_on<P>(
+    plant: &mut P,
+    u_drive: &[f64],
+    y_drive: &[f64],
+    freq_hz: f64,
+    order: u32,
+    eps: f64,
+) -> Result<Complex<f64>, DesignError>
+where
+    P: Plant<f64> + ?Sized,
+    P::Error: StdError + Send + Sync + 'static,
+{
+    let ts = plant.sample_interval_s();
+    let up = experiment::with_probe(u_drive, freq_hz, order, eps, ts)?;
+    let mut yp = vec![0.0; up.len()];
+    plant.run_into(&up, &mut yp).map_err(|e| DesignError::plant(&*plant, e))?;
+    Ok(experiment::probe_response(y_drive, &yp, freq_hz, order, eps, ts)?)
+}
+
 /// Why a design failed.
 #[derive(Debug)]
 pub enum DesignError {
-    /// The plant failed during the identification record or the trial run.
-    Plant(String),
+    /// The plant failed during the identification record, a probe or the trial run.
+    Plant {
+        /// The plant's name.
+        plant: String,
+        /// Its error.
+        error: Box<dyn StdError + Send + Sync>,
+    },
     /// The identification did not give a usable model.
     Fit(FitError),
     /// A parameter was out of range (the board's or the core's validation).
     Params(Error),
 }
 
+impl DesignError {
+    fn plant<P: Plant<f64> + ?Sized>(plant: &P, e: P::Error) -> Self
+    where
+        P::Error: StdError + Send + Sync + 'static,
+    {
+        DesignError::Plant { plant: plant.name().to_owned(), error: Box::new(e) }
+    }
+}
+
 impl fmt::Display for DesignError {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
-            DesignError::Plant(e) => write!(f, "plant: {e}"),
+            DesignError::Plant { plant, error } => write!(f, "plant: {plant}: {error}"),
             DesignError::Fit(e) => write!(f, "identification: {e}"),
             DesignError::Params(e) => write!(f, "compensator for the board: {e}"),
         }
     }
 }
 
-impl std::error::Error for DesignError {}
+impl StdError for DesignError {
+    fn source(&self) -> Option<&(dyn StdError + 'static)> {
+        match self {
+            DesignError::Plant { error, .. } => Some(error.as_ref()),
+            DesignError::Fit(e) => Some(e),
+            DesignError::Params(e) => Some(e),
+        }
+    }
+}
 
 impl From<Error> for DesignError {
     fn from(e: Error) -> Self {
@@ -218,15 +306,14 @@ pub struct PlantDesign {
 pub fn design_on_plant<P>(plant: &mut P, d: &PlantDesign) -> Result<BoardDesign, DesignError>
 where
     P: Plant<f64> + ?Sized,
-    P::Error: fmt::Display,
+    P::Error: StdError + Send + Sync + 'static,
 {
     let (f, ts) = (d.freq_hz, plant.sample_interval_s());
     let n = (d.seconds / ts).round() as usize;
     let u = experiment::sine(d.amplitude_v, f, ts, n)?;
-    let plant_err = |e: P::Error| DesignError::Plant(e.to_string());
-    plant.reset().map_err(plant_err)?;
+    plant.reset().map_err(|e| DesignError::plant(&*plant, e))?;
     let mut y = vec![0.0; n];
-    plant.run_into(&u, &mut y).map_err(plant_err)?;
+    plant.run_into(&u, &mut y).map_err(|e| DesignError::plant(&*plant, e))?;
     let opt = OeOptions { require_invertible: true, ..OeOptions::default() };
     let model =
         fit::fit_oe(&u, &y, ts, n / 2, &ModelSpec::extended(f), &[], &opt).map_err(DesignError::Fit)?.model;
@@ -246,24 +333,17 @@ where
     // u_f alone: which odd harmonic stands out in its tracking error?
     let uf = params(&[])?;
     let mut c = Controller::new(&uf)?;
-    plant.reset().map_err(plant_err)?;
+    plant.reset().map_err(|e| DesignError::plant(&*plant, e))?;
     let (mut y_prev, mut err) = (None, Vec::with_capacity(n));
     for _ in 0..n {
         let s = c.step(y_prev)?;
-        let yk = plant.step(s.out.u as f64).map_err(plant_err)?;
+        let yk = plant.step(s.out.u as f64).map_err(|e| DesignError::plant(&*plant, e))?;
         y_prev = Some(yk as f32);
         err.push(yk - s.d as f64);
     }
     let tail = &err[n / 2..];
     let m = analysis::whole_periods(tail.len(), f, ts);
-    let order = sweep::dominant_odd_harmonic(
-        &tail[..m],
-        f,
-        ts,
-        sweep::MIN_HARMONIC_SHARE,
-        sweep::MIN_CANCEL_REL * alpha_um,
-    )
-    .map(|(o, _)| o);
+    let order = cancelled_harmonic(&tail[..m], f, ts, alpha_um);
     let harmonics: Vec<HarmonicSpec<f64>> = order
         .into_iter()
         .flat_map(|o| experiment::model_harmonics(&model, &[o], f, ts, PhaseRule::Model))

@@ -240,7 +240,7 @@ pub fn instability(ar: [f64; 2], sim: &[f64], ts: f64) -> Option<String> {
     // Poles of z² − a1 z − a2: the largest modulus.
     let disc = a1 * a1 + 4.0 * a2;
     let radius = if disc >= 0.0 { (a1.abs() + disc.sqrt()) / 2.0 } else { (-a2).sqrt() };
-    if !(radius < 1.0) {
+    if radius.is_nan() || radius >= 1.0 {
         return Some(format!(
             "the structure has a pole of modulus {radius:.6} (a1 = {a1:.6}, a2 = {a2:.6}; stable needs every pole inside \
              the unit circle)"
@@ -258,28 +258,6 @@ pub fn instability(ar: [f64; 2], sim: &[f64], ts: f64) -> Option<String> {
     }
     None
 }
-
-/// Whether a free run `sim` drifts away from the output `y` over the held-out part (the
-/// baseline is also refitted when its held-out error is [`RUNAWAY_FACTOR`] times its error
-/// over the fit's criterion): the
-/// error's RMS over its last quarter is more than [`RUNAWAY_FACTOR`] times that over its
-/// first quarter (whole periods of `period` samples where given).
-pub fn drifts_away(sim: &[f64], y: &[f64], period: Option<f64>) -> bool {
-    let n = sim.len().min(y.len());
-    let q = match period {
-        Some(p) if p >= 1.0 && (n as f64) >= 4.0 * p => ((n as f64 / 4.0 / p).floor() * p).round() as usize,
-        _ => n / 4,
-    };
-    if q < 2 {
-        return false;
-    }
-    let first = analysis::rms_diff(&sim[..q], &y[..q]);
-    let last = analysis::rms_diff(&sim[n - q..n], &y[n - q..n]);
-    last > RUNAWAY_FACTOR * first
-}
-
-/// See [`drifts_away`].
-pub const RUNAWAY_FACTOR: f64 = 3.0;
 
 /// How far (µm, signed) the mean of a signal moves from its first to its last whole period
 /// of `period` samples; `None` with fewer than two periods. Under a periodic drive a model
@@ -968,25 +946,8 @@ fn diagnose_from(
     let opt = plan.opt.clone();
     // The baseline carries an output offset: a sensor's zero is arbitrary.
     let spec = ModelSpec { drift_degree: Some(0), ..ModelSpec::extended(drive_hz) };
-    let mut baseline = fit::fit_oe(u, y, ts, split, &spec, starts, &opt)?.model;
-    let mut baseline_sim = baseline.simulate(u, ts)?;
-    let criterion = opt.skip..opt.max_samples.min(split);
-    let worse_than_fitted = analysis::rms_diff(&baseline_sim[split..], &y[split..])
-        > RUNAWAY_FACTOR * analysis::rms_diff(&baseline_sim[criterion.clone()], &y[criterion]);
-    if worse_than_fitted || drifts_away(&baseline_sim[split..], &y[split..], plan.drive.period_samples) {
-        // The fit's criterion covers a few seconds; a Bouc–Wen loop does not always close
-        // (it can ratchet under a drive without half-wave symmetry) and its free run then
-        // runs away after them. Refit over the whole fitted part and keep the better free run.
-        let bounded = OeOptions { max_samples: split, ..opt.clone() };
-        if let Ok(f) = fit::fit_oe(u, y, ts, split, &spec, starts, &bounded) {
-            let sim = f.model.simulate(u, ts)?;
-            if analysis::rms_diff(&sim[split..], &y[split..])
-                < analysis::rms_diff(&baseline_sim[split..], &y[split..])
-            {
-                (baseline, baseline_sim) = (f.model, sim);
-            }
-        }
-    }
+    let baseline = fit::fit_oe(u, y, ts, split, &spec, starts, &opt)?.model;
+    let baseline_sim = baseline.simulate(u, ts)?;
     let held_out =
         |sim: &[f64]| -> Vec<f64> { y[split..].iter().zip(&sim[split..]).map(|(a, b)| a - b).collect() };
     let period = plan.drive.period_samples;
@@ -1049,7 +1010,7 @@ fn diagnose_from(
     // The drive explains too little: another input drives the output. No harmonic
     // diagnosis on top of it.
     let fit = baseline_check.fit_pct.unwrap_or(f64::NAN);
-    if !(fit >= MIN_FIT_PCT) {
+    if fit.is_nan() || fit < MIN_FIT_PCT {
         let cause = format!(
             "another input or a disturbance drives the output: the baseline explains only {fit:.1} % of the held-out \
              output (fit), less than {MIN_FIT_PCT:.0} %; a second actuator or signal, vibration, or a thermal or \

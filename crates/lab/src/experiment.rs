@@ -1,17 +1,24 @@
 //! The paper's two experiments on any plant: identification (section 3) and compensation
 //! (section 5), as building blocks for `sweep`.
 //!
-//! A plant is anything that takes `u[k]` (V) and returns `y[k]` (µm) at the end of the
-//! sample interval: the virtual bimorph, a board, or a model.
+//! A plant is any [`Plant`]: it takes `u[k]` (V) and returns `y[k]` (µm) at the end of the
+//! sample interval (the virtual bimorph, a record, a board, a model); a controller is any
+//! [`Controller`] (the compensator, [`Previewed`], or a [`Peer`]). [`closed_loop`] runs one
+//! on the other; a plant's error ends the run with the sample it failed at.
 
 use crate::analysis;
 use crate::fit::HostModel;
+use boucwen_core::Plant;
 use boucwen_core::compensator::{
-    Compensator, CompensatorConfig, HarmonicSpec, PhaseRule, Saturation, harmonic_response,
+    AnyCompensator, CompensatorConfig, HarmonicSpec, PhaseRule, Saturation, harmonic_response,
+};
+use boucwen_core::controllers::{
+    ControlOutput, Controller, ORC_CAPACITY, OpenLoop, OrcController, PiController, TuneOptions, tune,
 };
 use boucwen_core::rls::RlsConfig;
 use boucwen_core::signal::{Oscillator, Sine, sin_cos};
 use nalgebra::Complex;
+use std::fmt;
 
 /// The identification drive of eq. (13), `u[k] = amplitude·sin(2π f k Ts)`, `n` samples.
 pub fn sine(amplitude: f64, freq_hz: f64, ts: f64, n: usize) -> Result<Vec<f64>, boucwen_core::Error> {
@@ -112,11 +119,85 @@ impl Default for CompensationSettings {
 /// Length of the reference's fade-in (s).
 pub const FADE_IN_S: f64 = 0.5;
 
-/// The reference's envelope at sample `k` (fractional): a raised cosine over
-/// [`FADE_IN_S`], then 1.
-fn fade_in(ts: f64) -> impl Fn(f64) -> f64 {
-    let fade = (FADE_IN_S / ts).round().max(1.0);
-    move |k: f64| if k < fade { 0.5 - 0.5 * (std::f64::consts::PI * k.max(0.0) / fade).cos() } else { 1.0 }
+/// The reference of every tracking run: `d[k] = α·fade(k)·sin(2π f k Ts)`, with a
+/// raised-cosine fade over [`FADE_IN_S`].
+#[derive(Clone, Copy, Debug)]
+pub struct Reference {
+    alpha: f64,
+    drive: Oscillator,
+    /// `2π f Ts`.
+    w: f64,
+    /// Fade-in length in samples (at least 1).
+    fade: f64,
+}
+
+impl Reference {
+    /// The reference of amplitude `alpha` at `freq_hz`, sample interval `ts`.
+    pub fn new(alpha: f64, freq_hz: f64, ts: f64) -> Result<Self, boucwen_core::Error> {
+        Ok(Self {
+            alpha,
+            drive: Oscillator::new(freq_hz, ts)?,
+            w: std::f64::consts::TAU * freq_hz * ts,
+            fade: (FADE_IN_S / ts).round().max(1.0),
+        })
+    }
+
+    /// The envelope at (fractional) sample `k`: a raised cosine over the fade, then 1.
+    fn envelope(&self, k: f64) -> f64 {
+        if k < self.fade { 0.5 - 0.5 * (std::f64::consts::PI * k.max(0.0) / self.fade).cos() } else { 1.0 }
+    }
+
+    /// `d[k]`, its phase from the core's phase accumulator (as the board computes it).
+    pub fn sample(&self, k: u64) -> f64 {
+        self.alpha * self.envelope(k as f64) * sin_cos::<f64>(self.drive.phase_at(k)).0
+    }
+
+    /// `d` at a fractional sample `k` (the preview of a delayed plant).
+    pub fn at(&self, k: f64) -> f64 {
+        self.alpha * self.envelope(k) * (self.w * k).sin()
+    }
+}
+
+/// Why a closed-loop run failed.
+#[derive(Debug)]
+pub enum ExperimentError {
+    /// The core rejected a parameter (frequency, controller, tuning) or a step.
+    Core(boucwen_core::Error),
+    /// The plant failed.
+    Plant {
+        /// The plant's name.
+        plant: String,
+        /// The sample at which it failed.
+        sample: usize,
+        /// Its error.
+        error: Box<dyn std::error::Error + Send + Sync>,
+    },
+}
+
+impl fmt::Display for ExperimentError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            ExperimentError::Core(e) => write!(f, "{e}"),
+            ExperimentError::Plant { plant, sample, error } => {
+                write!(f, "{plant} at sample {sample}: {error}")
+            }
+        }
+    }
+}
+
+impl std::error::Error for ExperimentError {
+    fn source(&self) -> Option<&(dyn std::error::Error + 'static)> {
+        match self {
+            ExperimentError::Core(e) => Some(e),
+            ExperimentError::Plant { error, .. } => Some(error.as_ref()),
+        }
+    }
+}
+
+impl From<boucwen_core::Error> for ExperimentError {
+    fn from(e: boucwen_core::Error) -> Self {
+        ExperimentError::Core(e)
+    }
 }
 
 /// The plant's response at each harmonic from the model: its frequency response at `n·f`
@@ -184,9 +265,56 @@ pub fn with_probe(
     Ok(u_drive.iter().zip(&probe).map(|(a, b)| a + b).collect())
 }
 
-/// Tracks `d[k] = α sin(2π f k Ts)` for `n` samples with the compensator built from
-/// `model`, cancelling the harmonics `harmonics` (empty: `u_f` alone, eqs. 16/17; otherwise
-/// the proposed law, eqs. 20/21), each with the plant's response at its frequency.
+/// The compensator of [`track`], previewing the reference by the model's input delay
+/// ([`boucwen_core::compensator::Compensator::step_previewed`]): at its `k`-th step the
+/// inverse works on `d` at `k + τ`, the tracking error on `d[k]`.
+#[derive(Clone, Debug)]
+pub struct Previewed {
+    comp: AnyCompensator<f64, 2>,
+    reference: Reference,
+    delay: f64,
+    k: u64,
+}
+
+impl Previewed {
+    /// The compensator built from `model` (its extended part, its delay `τ`), cancelling
+    /// `harmonics` (at most two), for `reference`.
+    pub fn new(
+        model: &HostModel,
+        harmonics: &[HarmonicSpec<f64>],
+        reference: Reference,
+        set: &CompensationSettings,
+    ) -> Result<Self, boucwen_core::Error> {
+        let base = CompensatorConfig {
+            model: model.ext,
+            drive: reference.drive,
+            harmonics: [],
+            rls: RlsConfig::with_forgetting(set.lambda, set.p0),
+            saturation: set.saturation,
+            uc_max: set.uc_max,
+        };
+        Ok(Self { comp: AnyCompensator::new(base, harmonics)?, reference, delay: model.delay, k: 0 })
+    }
+}
+
+impl Controller<f64> for Previewed {
+    fn step(&mut self, d: f64, y_prev: Option<f64>) -> Result<ControlOutput<f64>, boucwen_core::Error> {
+        let d_ahead = self.reference.at(self.k as f64 + self.delay);
+        let out = self.comp.step_previewed(d, d_ahead, y_prev)?;
+        self.k += 1;
+        Ok(out.into())
+    }
+
+    fn reset(&mut self) {
+        self.comp.reset();
+        self.k = 0;
+    }
+}
+
+/// Tracks `d[k] = α sin(2π f k Ts)` for `n` samples on `plant` (from its current state)
+/// with the compensator built from `model`, cancelling the harmonics `harmonics` (empty:
+/// `u_f` alone, eqs. 16/17; otherwise the proposed law, eqs. 20/21), each with the plant's
+/// response at its frequency.
 ///
 /// The reference is faded in over the first [`FADE_IN_S`] (a raised-cosine envelope on `α`).
 /// The direct inverse is exact: started from rest on a full-amplitude sine it demands that
@@ -194,50 +322,22 @@ pub fn with_probe(
 /// times the steady input), which drives the model's hysteresis far outside the loop it was
 /// identified on. The paper measures the RMSE after 20 s, long after start-up; the fade
 /// changes nothing there.
-pub fn track(
-    plant: &mut dyn FnMut(f64) -> f64,
+pub fn track<P>(
+    plant: &mut P,
     model: &HostModel,
     harmonics: &[HarmonicSpec<f64>],
     alpha: f64,
     freq_hz: f64,
-    ts: f64,
     n: usize,
     set: &CompensationSettings,
-) -> Result<Trace, boucwen_core::Error> {
-    fn run<const M: usize>(
-        plant: &mut dyn FnMut(f64) -> f64,
-        model: &HostModel,
-        specs: &[HarmonicSpec<f64>],
-        alpha: f64,
-        freq_hz: f64,
-        ts: f64,
-        n: usize,
-        set: &CompensationSettings,
-    ) -> Result<Trace, boucwen_core::Error> {
-        let drive = Oscillator::new(freq_hz, ts)?;
-        let harmonics: [HarmonicSpec<f64>; M] = core::array::from_fn(|m| specs[m]);
-        let mut comp = Compensator::new(CompensatorConfig {
-            model: model.ext,
-            drive,
-            harmonics,
-            rls: RlsConfig::with_forgetting(set.lambda, set.p0),
-            saturation: set.saturation,
-            uc_max: set.uc_max,
-        })?;
-        let envelope = fade_in(ts);
-        // For the model's input delay τ, the reference τ samples ahead.
-        let w = std::f64::consts::TAU * freq_hz * ts;
-        closed_loop(plant, drive, alpha, ts, n, |k, d, y_prev| {
-            let d_ahead = alpha * envelope(k + model.delay) * (w * (k + model.delay)).sin();
-            Ok(comp.step_previewed(d, d_ahead, y_prev)?.u)
-        })
-    }
-    match harmonics.len() {
-        0 => run::<0>(plant, model, harmonics, alpha, freq_hz, ts, n, set),
-        1 => run::<1>(plant, model, harmonics, alpha, freq_hz, ts, n, set),
-        2 => run::<2>(plant, model, harmonics, alpha, freq_hz, ts, n, set),
-        _ => Err(boucwen_core::Error::OutOfRange("harmonic orders (at most 2 are cancelled at once)")),
-    }
+) -> Result<Trace, ExperimentError>
+where
+    P: Plant<f64> + ?Sized,
+    P::Error: std::error::Error + Send + Sync + 'static,
+{
+    let reference = Reference::new(alpha, freq_hz, plant.sample_interval_s())?;
+    let mut comp = Previewed::new(model, harmonics, reference, set)?;
+    closed_loop(plant, &mut comp, &reference, n)
 }
 
 /// The peer controllers of [`boucwen_core::controllers`], tuned by its rule from `model`.
@@ -251,51 +351,72 @@ pub enum Peer {
     Orc,
 }
 
-/// Tracks the same faded-in reference as [`track`] with a peer controller tuned from
-/// `model` by [`boucwen_core::controllers::tune`] (the model's input delay included,
-/// the default sensitivity bound and ORC placement, plain feedback).
-pub fn track_peer(
-    plant: &mut dyn FnMut(f64) -> f64,
+impl Peer {
+    /// The peer tuned from `model` by [`boucwen_core::controllers::tune`] (the model's input
+    /// delay included, the default sensitivity bound and ORC placement, plain feedback) for
+    /// a reference at `freq_hz`.
+    pub fn tuned(
+        self,
+        model: &HostModel,
+        freq_hz: f64,
+        ts: f64,
+        set: &CompensationSettings,
+    ) -> Result<Box<dyn Controller<f64> + Send>, boucwen_core::Error> {
+        let drive = Oscillator::new(freq_hz, ts)?;
+        let opts = TuneOptions { input_delay_samples: model.delay, ..TuneOptions::default() };
+        let tuning = tune(&model.ext, drive, ts, set.saturation, &opts)?;
+        Ok(match self {
+            Peer::OpenLoop => Box::new(OpenLoop::new(tuning.open_loop)?),
+            Peer::Pi => Box::new(PiController::new(tuning.pi.pi)?),
+            Peer::Orc => Box::new(OrcController::<f64, ORC_CAPACITY>::new(tuning.pi.pi, tuning.orc.orc)?),
+        })
+    }
+}
+
+/// Tracks the same faded-in reference as [`track`] with a peer controller
+/// ([`Peer::tuned`] from `model`).
+pub fn track_peer<P>(
+    plant: &mut P,
     model: &HostModel,
     peer: Peer,
     alpha: f64,
     freq_hz: f64,
-    ts: f64,
     n: usize,
     set: &CompensationSettings,
-) -> Result<Trace, boucwen_core::Error> {
-    use boucwen_core::controllers::{
-        Controller, ORC_CAPACITY, OpenLoop, OrcController, PiController, TuneOptions, tune,
-    };
-    let drive = Oscillator::new(freq_hz, ts)?;
-    let opts = TuneOptions { input_delay_samples: model.delay, ..TuneOptions::default() };
-    let tuning = tune(&model.ext, drive, ts, set.saturation, &opts)?;
-    let mut ctrl: Box<dyn Controller<f64>> = match peer {
-        Peer::OpenLoop => Box::new(OpenLoop::new(tuning.open_loop)?),
-        Peer::Pi => Box::new(PiController::new(tuning.pi.pi)?),
-        Peer::Orc => Box::new(OrcController::<f64, ORC_CAPACITY>::new(tuning.pi.pi, tuning.orc.orc)?),
-    };
-    closed_loop(plant, drive, alpha, ts, n, |_, d, y_prev| Ok(ctrl.step(d, y_prev)?.u))
+) -> Result<Trace, ExperimentError>
+where
+    P: Plant<f64> + ?Sized,
+    P::Error: std::error::Error + Send + Sync + 'static,
+{
+    let ts = plant.sample_interval_s();
+    let reference = Reference::new(alpha, freq_hz, ts)?;
+    let mut ctrl = peer.tuned(model, freq_hz, ts, set)?;
+    closed_loop(plant, ctrl.as_mut(), &reference, n)
 }
 
-/// Runs `n` samples of a controller on `plant` with the reference
-/// `d[k] = alpha·fade(k)·sin(θ_k)`: `control(k, d[k], y[k-1])` returns `u[k]`.
-fn closed_loop(
-    plant: &mut dyn FnMut(f64) -> f64,
-    drive: Oscillator,
-    alpha: f64,
-    ts: f64,
+/// Runs `n` samples of `controller` on `plant` tracking `reference`: at sample `k` the
+/// controller gets `d[k]` and `y[k-1]` and its `u[k]` goes to the plant. The one
+/// closed-loop runner of the compensator and the peers.
+pub fn closed_loop<P>(
+    plant: &mut P,
+    controller: &mut dyn Controller<f64>,
+    reference: &Reference,
     n: usize,
-    mut control: impl FnMut(f64, f64, Option<f64>) -> Result<f64, boucwen_core::Error>,
-) -> Result<Trace, boucwen_core::Error> {
-    let envelope = fade_in(ts);
+) -> Result<Trace, ExperimentError>
+where
+    P: Plant<f64> + ?Sized,
+    P::Error: std::error::Error + Send + Sync + 'static,
+{
     let mut t = Trace { d: Vec::with_capacity(n), u: Vec::with_capacity(n), y: Vec::with_capacity(n) };
     let mut y_prev = None;
     for k in 0..n {
-        let (s_now, _) = sin_cos::<f64>(drive.phase_at(k as u64));
-        let d = alpha * envelope(k as f64) * s_now;
-        let u = control(k as f64, d, y_prev)?;
-        let y = plant(u);
+        let d = reference.sample(k as u64);
+        let u = controller.step(d, y_prev)?.u;
+        let y = plant.step(u).map_err(|e| ExperimentError::Plant {
+            plant: plant.name().to_owned(),
+            sample: k,
+            error: Box::new(e),
+        })?;
         y_prev = Some(y);
         t.d.push(d);
         t.u.push(u);
@@ -309,6 +430,7 @@ mod tests {
     use super::*;
     use crate::fit::Branch;
     use boucwen_core::model::{BoucWenParams, ExtendedParams};
+    use boucwen_core::plant::ModelPlant;
 
     #[test]
     fn eq25_is_the_least_squares_gain() {
@@ -340,13 +462,74 @@ mod tests {
         let mut rmse = vec![];
         for orders in [&[][..], &[3][..]] {
             // The plant: the model itself, stepped sample by sample.
-            let p = plant_model.enhanced_for_test();
-            let mut s = boucwen_core::model::Model::initial_state(&p);
-            let mut plant = |u: f64| boucwen_core::model::Model::step(&p, &mut s, u);
+            let mut plant = ModelPlant::new(plant_model.enhanced_for_test(), 1e-3).unwrap();
             let h = model_harmonics(&controller_model, orders, 23.0, 1e-3, set.phase_rule);
-            let t = track(&mut plant, &controller_model, &h, alpha, 23.0, 1e-3, n, &set).unwrap();
+            let t = track(&mut plant, &controller_model, &h, alpha, 23.0, n, &set).unwrap();
             rmse.push(t.rmse_after(5000) / alpha);
         }
         assert!(rmse[0] > 0.05 && rmse[1] < 0.01, "{rmse:?}");
+    }
+
+    /// A plant that passes `u` through and breaks at sample 7.
+    struct Breaks {
+        k: usize,
+    }
+
+    #[derive(Debug)]
+    struct CableCut;
+
+    impl fmt::Display for CableCut {
+        fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+            f.write_str("cable cut")
+        }
+    }
+
+    impl std::error::Error for CableCut {}
+
+    impl Plant<f64> for Breaks {
+        type Error = CableCut;
+        fn step(&mut self, u: f64) -> Result<f64, CableCut> {
+            if self.k == 7 {
+                return Err(CableCut);
+            }
+            self.k += 1;
+            Ok(u)
+        }
+        fn sample_interval_s(&self) -> f64 {
+            1e-3
+        }
+        fn reset(&mut self) -> Result<(), CableCut> {
+            self.k = 0;
+            Ok(())
+        }
+        fn name(&self) -> &str {
+            "test plant"
+        }
+    }
+
+    #[test]
+    fn a_plant_error_ends_the_run_naming_the_sample() {
+        let model = HostModel {
+            ext: ExtendedParams {
+                bw: BoucWenParams { a1: 20.0, a: 6.0, a0: 0.5, gamma: 2.0, beta: 3.0 },
+                ar: [0.5, 0.0],
+            },
+            drive_hz: 10.0,
+            branches: vec![],
+            drift: vec![],
+            delay: 0.0,
+        };
+        let set = CompensationSettings::default();
+        for peer in [Peer::OpenLoop, Peer::Pi, Peer::Orc] {
+            let e = track_peer(&mut Breaks { k: 0 }, &model, peer, 5.0, 10.0, 100, &set).unwrap_err();
+            assert!(matches!(e, ExperimentError::Plant { sample: 7, .. }), "{e:?}");
+            assert_eq!(e.to_string(), "test plant at sample 7: cable cut");
+        }
+        let e = track(&mut Breaks { k: 0 }, &model, &[], 5.0, 10.0, 100, &set).unwrap_err();
+        assert_eq!(e.to_string(), "test plant at sample 7: cable cut");
+        // Before it breaks, the run is the plain loop.
+        let t = track(&mut Breaks { k: 0 }, &model, &[], 5.0, 10.0, 7, &set).unwrap();
+        assert_eq!(t.d.len(), 7);
+        assert_eq!(t.y, t.u);
     }
 }

@@ -172,7 +172,7 @@ impl Case {
             Effect::Drift => 1000,
             _ => return Err(CaseError::Order(effect)),
         };
-        let mut d = Draw(seed ^ class.wrapping_mul(0x5EED_0F_B0C5));
+        let mut d = Draw(seed ^ class.wrapping_mul(0x5E_ED0F_B0C5));
         let mut s = Scenario::default().with_seed(seed & (i64::MAX as u64)).without_drift();
         let amplitude_v = d.uniform(AMPLITUDE_RANGE_V.0, AMPLITUDE_RANGE_V.1);
         let zeta = d.log_uniform(DAMPING_RANGE.0, DAMPING_RANGE.1);

@@ -10,8 +10,9 @@
 //! | [`excitation`] | periodic excitations: odd random-phase multisines, triangles |
 //! | [`steady`] | the drive's kind and the steady window of a record |
 //! | [`fit`] | identification: the paper's RLS and output error |
-//! | [`design`] | an identified model (or a plant) to the board's parameters |
-//! | [`experiment`] | closed-loop runs of the compensator and the peers |
+//! | [`design`] | an identified model (or a plant) to the board's parameters; the cancellation rule and the probe of the response at `n·f`, shared by `boucwen hil` and the sweep |
+//! | [`experiment`] | one closed-loop runner for any core `Controller` on any core `Plant`: the compensator (with preview) and the peers |
+//! | [`simulate`] | the virtual bimorph on a sine or a drive file, to a record |
 //! | [`sweep`] | the paper's Figs. 10 and 16 on the virtual bimorph |
 //! | [`diagnose`] | what a model gets wrong on a record, the cause, the term that fixes it |
 //! | [`distortion`] | periodic and multisine drives: lines of whole periods, the BLA, noise and distortion levels at odd and even non-excited lines |
@@ -37,6 +38,7 @@ pub mod messy;
 pub mod plot;
 pub mod record;
 pub mod report;
+pub mod simulate;
 pub mod steady;
 pub mod sweep;
 pub mod terms;

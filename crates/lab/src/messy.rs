@@ -7,7 +7,7 @@
 //! | mess | what the record looks like | what the user passes |
 //! |---|---|---|
 //! | [`Mess::LeadIn`] | 0.5–3.5 s idle at 0 V, then the drive steps onto the sine at a drawn phase within ±0.4 rad of a zero crossing (the actuator rings), 0–1 s idle at the end | nothing |
-//! | [`Mess::FewPeriods`] | a slow drive (1–3 Hz), 5 to 8 periods after 0.3 s | nothing |
+//! | [`Mess::FewPeriods`] | a slow drive (0.5–1.5 Hz, as the 1 Hz bench record of issue 12), 5 to 8 periods after 0.3 s | nothing |
 //! | [`Mess::Renamed`] | an unnamed index column first, then `Displacement (um)`, `Time`, `Voltage` | nothing |
 //! | [`Mess::NoHeader`] | no header, no time column, `u` and `y` separated by tabs | `--columns u=1,y=2 --sample-rate HZ` |
 //! | [`Mess::Metres`] | `y` in metres | `--y-unit m` |
@@ -167,7 +167,7 @@ impl Messy {
                 (u, None)
             }
             Mess::FewPeriods => {
-                f = d.uniform(1.0, 3.0);
+                f = d.uniform(0.5, 1.5);
                 let periods = d.uniform(5.0, 8.0);
                 let n = ((0.3 + periods / f) / ts).round() as usize;
                 drive_s = (0.0, n as f64 * ts);

@@ -300,7 +300,7 @@ fn fmt_tick(t: f64) -> String {
 
 /// Round tick values spanning `[lo, hi]`, about `n` of them.
 pub fn nice_ticks(lo: f64, hi: f64, n: usize) -> Vec<f64> {
-    if !(hi > lo) || !lo.is_finite() || !hi.is_finite() {
+    if !lo.is_finite() || !hi.is_finite() || hi <= lo {
         return vec![];
     }
     let raw = (hi - lo) / n.max(1) as f64;

@@ -303,7 +303,7 @@ pub fn autocorrelation_period(x: &[f64]) -> Option<f64> {
     }
     planner.plan_fft_inverse(len).process(&mut buf);
     let c0 = buf[0].re;
-    if !(c0 > 0.0) {
+    if c0.is_nan() || c0 <= 0.0 {
         return None;
     }
     let half = n / 2;
@@ -459,7 +459,7 @@ fn blocks(u: &[f64]) -> (usize, Vec<Level>, Compare) {
 /// The longest run of steady blocks `[first, last]` and its median level.
 fn longest_run(levels: &[Level], cmp: Compare) -> Option<(usize, usize, Level)> {
     let big = levels.iter().map(|l| cmp.size(l)).fold(0.0, f64::max);
-    if !(big > 0.0) {
+    if big.is_nan() || big <= 0.0 {
         return None;
     }
     let busy = |l: &Level| cmp.size(l) >= BUSY_REL * big;
@@ -795,7 +795,7 @@ pub const MAX_LAG_S: f64 = 0.1;
 /// Checks that the output responds to the drive in the window (see [`NoResponse`]).
 pub fn check_response(u: &[f64], y: &[f64], ts: f64, drive: &Drive) -> Result<(), NoResponse> {
     let (lo, hi) = y.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &v| (a.min(v), b.max(v)));
-    if !(hi > lo) {
+    if hi.is_nan() || lo.is_nan() || hi <= lo {
         return Err(NoResponse::Constant { value_um: if lo.is_finite() { lo } else { 0.0 } });
     }
     let mut sorted = y.to_vec();

@@ -19,7 +19,7 @@
 //! 2. **Harmonic order.** The enhanced model gets a branch of order `n` where the data call
 //!    for one: by default the odd harmonic holding the largest share of the residual of the
 //!    extended output-error fit (on the fitting half), if that share is at least
-//!    [`MIN_HARMONIC_SHARE`] and its amplitude at least [`MIN_HARMONIC_REL`] of the output's
+//!    [`design::MIN_HARMONIC_SHARE`] and its amplitude at least [`MIN_HARMONIC_REL`] of the output's
 //!    fundamental; with [`HarmonicChoice::Paper`],
 //!    the paper's table (5th at 14 Hz, 3rd at 18–28 Hz). Where no branch is chosen the
 //!    enhanced model *is* the extended model and the proposed controller *is* `u_f`, and the
@@ -29,19 +29,21 @@
 //!    20/21), each with the models of both identification methods; the RMSE is taken after
 //!    the settling time (the paper: after 20 s of 100 s). As in the paper, `u_f` alone is
 //!    synthesised from the extended model. The proposed law cancels the harmonic that the
-//!    tracking error under `u_f` shows (the paper's Fig. 13 reasoning: the odd harmonic
-//!    holding the largest share of that error, at least [`MIN_HARMONIC_SHARE`] of its power
-//!    and [`MIN_CANCEL_REL`] of `α`); its `u_f` comes from the first two equations of the
+//!    tracking error under `u_f` shows ([`design::cancelled_harmonic`], the rule `boucwen
+//!    hil` uses too); its `u_f` comes from the first two equations of the
 //!    enhanced model when that model carries the same harmonic and is invertible, else from
 //!    the extended model. Where no harmonic qualifies the proposed law is `u_f` itself.
 
 use crate::analysis;
-use crate::experiment::{self, CompensationSettings, Peer, Trace};
+use crate::design::{self, PROBE_REL, PROBE_SECONDS, ResponseSource};
+use crate::experiment::{self, CompensationSettings, ExperimentError, Peer, Trace};
 use crate::fit::{self, FitError, HostModel, ModelSpec, OeOptions};
 use boucwen_core::compensator::{HarmonicSpec, PhaseRule};
 use boucwen_sim::{Bimorph, Scenario, SimError};
 use rayon::prelude::*;
+use serde::Serialize;
 use std::fmt;
+use std::path::PathBuf;
 
 /// How the harmonic order of the enhanced model is chosen.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -51,26 +53,6 @@ pub enum HarmonicChoice {
     /// The paper's table: 5th at 14 Hz, 3rd at 18–28 Hz, none elsewhere.
     Paper,
 }
-
-/// Where the harmonic cancellation takes the actuator's response at `n·f` from.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub enum ResponseSource {
-    /// The identified model's frequency response (small-signal structure, with the delay).
-    Model,
-    /// The paper's table (eqs. 22/23): 0 below the flip frequency, π above.
-    Table {
-        /// The flip frequency (Hz; 66 in the paper).
-        flip_hz: f64,
-    },
-    /// The response identified at the operating point: the identification drive plus a
-    /// small probe at `n·f`, for [`PROBE_SECONDS`].
-    Probe,
-}
-
-/// Length of a probe run (s).
-pub const PROBE_SECONDS: f64 = 3.0;
-/// Probe amplitude relative to the drive amplitude.
-pub const PROBE_REL: f64 = 0.01;
 
 /// Settings of a sweep.
 #[derive(Clone, Debug)]
@@ -174,8 +156,8 @@ pub fn identify_structure(scenario: &Scenario, drive_amplitude: f64) -> Result<S
     Ok(Structure { model, shape, rms_fit_um: fit.rms_fit, resonance_hz })
 }
 
-/// One frequency's results. `NaN` where a model was unstable in free run.
-#[derive(Clone, Debug, PartialEq)]
+/// One frequency's results. `NaN` where a model was unstable in free run (`null` in JSON).
+#[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct Row {
     /// Drive frequency (Hz).
     pub freq_hz: f64,
@@ -270,8 +252,28 @@ pub enum SweepError {
     Fit(f64, FitError),
     /// A core error at a frequency (invalid frequency, compensator parameters).
     Core(f64, boucwen_core::Error),
-    /// The options are unusable.
-    Options(String),
+    /// A tracking run failed at a frequency (the plant or the controller).
+    Experiment(f64, ExperimentError),
+    /// A probe of the actuator's response failed at a frequency.
+    Probe(f64, design::DesignError),
+    /// No frequency to sweep.
+    NoFrequencies,
+    /// The frequency range is unusable (not finite, not increasing, or too many).
+    Range {
+        /// Lowest frequency, Hz.
+        from: f64,
+        /// Highest frequency, Hz.
+        to: f64,
+        /// Step, Hz.
+        step: f64,
+    },
+    /// The record length (s) is not a positive number.
+    Seconds(f64),
+    /// The record length (s) leaves fewer than 2 periods of the lowest frequency in the
+    /// held-out half.
+    TooShort(f64),
+    /// The record length (s) gives fewer than 1000 samples.
+    TooFewSamples(f64),
 }
 
 impl fmt::Display for SweepError {
@@ -280,7 +282,20 @@ impl fmt::Display for SweepError {
             SweepError::Sim(e) => write!(f, "virtual bimorph: {e}"),
             SweepError::Fit(hz, e) => write!(f, "at {hz} Hz: {e}"),
             SweepError::Core(hz, e) => write!(f, "at {hz} Hz: {e}"),
-            SweepError::Options(s) => write!(f, "{s}"),
+            SweepError::Experiment(hz, e) => write!(f, "at {hz} Hz: {e}"),
+            SweepError::Probe(hz, e) => write!(f, "at {hz} Hz: probe: {e}"),
+            SweepError::NoFrequencies => f.write_str("no frequencies to sweep"),
+            SweepError::Range { from, to, step } => write!(
+                f,
+                "need finite 0 < --from <= --to and --step > 0, at most {MAX_FREQUENCIES} frequencies \
+                 (got --from {from} --to {to} --step {step})"
+            ),
+            SweepError::Seconds(s) => write!(f, "--seconds must be > 0 (got {s})"),
+            SweepError::TooShort(s) => write!(
+                f,
+                "--seconds {s} is too short: the held-out half must hold at least 2 periods of the lowest frequency"
+            ),
+            SweepError::TooFewSamples(s) => write!(f, "--seconds {s} gives fewer than 1000 samples"),
         }
     }
 }
@@ -310,37 +325,21 @@ fn choose_order(
             let skip = (fit_end / 5).min(2000);
             let r: Vec<f64> = y[skip..fit_end].iter().zip(&sim[skip..fit_end]).map(|(a, b)| a - b).collect();
             let out_amp = analysis::harmonics(&y[skip..fit_end], f, ts, 1).first().map_or(0.0, |t| t.amp);
-            Ok(dominant_odd_harmonic(&r, f, ts, MIN_HARMONIC_SHARE, MIN_HARMONIC_REL * out_amp)
-                .unwrap_or((0, 0.0)))
+            Ok(analysis::dominant_odd_harmonic(
+                &r,
+                f,
+                ts,
+                design::MIN_HARMONIC_SHARE,
+                MIN_HARMONIC_REL * out_amp,
+            )
+            .unwrap_or((0, 0.0)))
         }
     }
 }
 
-/// Smallest share of the error power a harmonic must hold to be chosen.
-pub const MIN_HARMONIC_SHARE: f64 = 0.2;
 /// Smallest amplitude of a harmonic the model gets a branch for, relative to the output's
 /// fundamental: below this a term is not worth it.
 pub const MIN_HARMONIC_REL: f64 = 0.02;
-/// Smallest amplitude of a harmonic the proposed law cancels, relative to `α`: a change of
-/// controller must be worth its side effects (the cancellation input passes through the
-/// loop and leaves a little at other frequencies).
-pub const MIN_CANCEL_REL: f64 = 0.05;
-
-/// The dominant odd harmonic (order ≥ 3, below Nyquist) of `x`, if it holds at least
-/// `min_share` of `x`'s power and has an amplitude of at least `min_amp`.
-pub fn dominant_odd_harmonic(x: &[f64], f: f64, ts: f64, min_share: f64, min_amp: f64) -> Option<(u32, f64)> {
-    let power = analysis::rms(x).powi(2);
-    let kmax = ((0.5 / ts) / f).floor() as usize;
-    analysis::harmonics(x, f, ts, kmax.min(40))
-        .iter()
-        .enumerate()
-        .map(|(i, t)| ((i + 1) as u32, t.amp))
-        .filter(|(n, _)| n % 2 == 1 && *n >= 3)
-        .map(|(n, amp)| (n, amp * amp / 2.0 / power.max(1e-300), amp))
-        .max_by(|a, b| a.1.total_cmp(&b.1))
-        .filter(|&(_, share, amp)| share >= min_share && amp >= min_amp)
-        .map(|(n, share, _)| (n, share))
-}
 
 /// The harmonic for the proposed law, from the tracking error under `u_f` alone.
 fn cancel_order(choice: HarmonicChoice, f: f64, ts: f64, uf: &Trace, settle: usize, alpha: f64) -> u32 {
@@ -349,8 +348,7 @@ fn cancel_order(choice: HarmonicChoice, f: f64, ts: f64, uf: &Trace, settle: usi
         HarmonicChoice::Auto => {
             let e = uf.error();
             let from = settle.min(e.len());
-            dominant_odd_harmonic(&e[from..], f, ts, MIN_HARMONIC_SHARE, MIN_CANCEL_REL * alpha.abs())
-                .map_or(0, |(n, _)| n)
+            design::cancelled_harmonic(&e[from..], f, ts, alpha).unwrap_or(0)
         }
     }
 }
@@ -367,30 +365,45 @@ fn paper_order(f: f64, ts: f64) -> u32 {
     if n as f64 * f < 0.5 / ts { n } else { 0 }
 }
 
-/// One frequency of the sweep.
-pub fn run_frequency(
+/// What one frequency of the sweep gives.
+#[derive(Clone, Debug)]
+pub struct FrequencyResult {
+    /// The row of the table.
+    pub row: Row,
+    /// The signals, if they were kept.
+    pub traces: Option<Traces>,
+    /// Actuator time simulated (s).
+    pub actuator_s: f64,
+}
+
+/// The models identified at one frequency and their held-out errors.
+struct Identified {
+    /// The enhanced model's harmonic order (0: none).
+    order: u32,
+    ext_oe: HostModel,
+    enh_oe: HostModel,
+    /// The enhanced output-error fit keeps its loop invertible over the record.
+    enh_oe_invertible: bool,
+    ext_rls: HostModel,
+    enh_rls: HostModel,
+    /// Held-out free-run RMS errors: RLS extended, RLS enhanced, OE extended, OE enhanced.
+    rms: [f64; 4],
+    /// Free runs of the OE models over the whole record.
+    y_ext: Vec<f64>,
+    y_enh: Vec<f64>,
+}
+
+/// Step 1 and 2 of the module docs at one frequency: the fits of both methods on the first
+/// half of the record `(u, y)`, the harmonic order, the held-out errors.
+fn identify_at(
     opts: &SweepOptions,
     structure: &Structure,
-    index: usize,
-    keep_traces: bool,
-) -> Result<(Row, Option<Traces>, f64), SweepError> {
-    let f = opts.freqs[index];
+    f: f64,
+    u: &[f64],
+    y: &[f64],
+) -> Result<Identified, FitError> {
     let ts = opts.scenario.sampling.ts_s;
-    let n = (opts.seconds / ts).round() as usize;
-    let fit_end = n / 2;
-    let settle = (opts.settle_s() / ts).round() as usize;
-    let core = |e| SweepError::Core(f, e);
-    let fit_err = |e| SweepError::Fit(f, e);
-    // Independent noise per frequency and run, reproducible from the scenario's seed.
-    let seed = |run: u64| opts.scenario.seed.wrapping_mul(1_000_003).wrapping_add(index as u64 * 16 + run);
-    let plant = |run: u64| Bimorph::new(&opts.scenario.clone().with_seed(seed(run)));
-
-    // 1. Identification record.
-    let u = experiment::sine(opts.drive_amplitude, f, ts, n).map_err(core)?;
-    let y = plant(0)?.run(&u)?;
-    let mut samples = n;
-
-    // 2. Fits.
+    let fit_end = u.len() / 2;
     let oe = OeOptions {
         structure: Some(structure.model.ext.ar),
         fix_structure: true,
@@ -398,43 +411,73 @@ pub fn run_frequency(
         shape: Some(structure.shape),
         ..OeOptions::default()
     };
-    let ext_fit = fit::fit_oe(&u, &y, ts, fit_end, &ModelSpec::extended(f), &[], &oe).map_err(fit_err)?;
+    let ext_fit = fit::fit_oe(u, y, ts, fit_end, &ModelSpec::extended(f), &[], &oe)?;
     let ext_oe = ext_fit.model.clone();
-    let (order, _share) = choose_order(opts.harmonics, f, ts, &u, &y, &ext_oe, fit_end).map_err(fit_err)?;
+    let (order, _share) = choose_order(opts.harmonics, f, ts, u, y, &ext_oe, fit_end)?;
     let orders: Vec<u32> = if order > 0 { vec![order] } else { vec![] };
     let enh_fit = if orders.is_empty() {
-        ext_fit.clone()
+        ext_fit
     } else {
-        fit::fit_oe(&u, &y, ts, fit_end, &ModelSpec::enhanced(f, &orders), std::slice::from_ref(&ext_oe), &oe)
-            .map_err(fit_err)?
+        fit::fit_oe(u, y, ts, fit_end, &ModelSpec::enhanced(f, &orders), std::slice::from_ref(&ext_oe), &oe)?
     };
-    let enh_oe = enh_fit.model.clone();
-    let ext_rls = fit::fit_paper_rls(&u, &y, ts, fit_end, &ModelSpec::extended(f)).map_err(fit_err)?;
+    let ext_rls = fit::fit_paper_rls(u, y, ts, fit_end, &ModelSpec::extended(f))?;
     // The paper's RLS fits the branch by equation error; its free run can come out worse than
     // the extended model's. The branch is kept only if the free run on the fitted half (after
     // the start-up) improves: a choice made on the fitted data alone.
     let enh_rls = if orders.is_empty() {
         ext_rls.clone()
     } else {
-        let cand =
-            fit::fit_paper_rls(&u, &y, ts, fit_end, &ModelSpec::enhanced(f, &orders)).map_err(fit_err)?;
-        let on_fit = |m: &HostModel| -> Result<f64, SweepError> {
-            let sim = m.simulate(&u[..fit_end], ts).map_err(fit_err)?;
+        let cand = fit::fit_paper_rls(u, y, ts, fit_end, &ModelSpec::enhanced(f, &orders))?;
+        let on_fit = |m: &HostModel| -> Result<f64, FitError> {
+            let sim = m.simulate(&u[..fit_end], ts)?;
             let skip = (fit_end / 5).min(2000);
             Ok(analysis::rms_diff(&sim[skip..], &y[skip..fit_end]))
         };
-        let (c, e) = (on_fit(&cand)?, on_fit(&ext_rls)?);
-        if c < e { cand } else { ext_rls.clone() }
+        if on_fit(&cand)? < on_fit(&ext_rls)? { cand } else { ext_rls.clone() }
     };
-    let held_out = |m: &HostModel| -> Result<(f64, Vec<f64>), SweepError> {
-        let sim = m.simulate(&u, ts).map_err(fit_err)?;
+    let held_out = |m: &HostModel| -> Result<(f64, Vec<f64>), FitError> {
+        let sim = m.simulate(u, ts)?;
         let r = analysis::rms_diff(&sim[fit_end..], &y[fit_end..]);
         Ok((if r.is_finite() { r } else { f64::NAN }, sim))
     };
     let (rms_ext_rls, _) = held_out(&ext_rls)?;
     let (rms_enh_rls, _) = held_out(&enh_rls)?;
     let (rms_ext_oe, y_ext) = held_out(&ext_oe)?;
-    let (rms_enh_oe, y_enh) = held_out(&enh_oe)?;
+    let (rms_enh_oe, y_enh) = held_out(&enh_fit.model)?;
+    Ok(Identified {
+        order,
+        ext_oe,
+        enh_oe_invertible: enh_fit.invertible,
+        enh_oe: enh_fit.model,
+        ext_rls,
+        enh_rls,
+        rms: [rms_ext_rls, rms_enh_rls, rms_ext_oe, rms_enh_oe],
+        y_ext,
+        y_enh,
+    })
+}
+
+/// One frequency of the sweep.
+pub fn run_frequency(
+    opts: &SweepOptions,
+    structure: &Structure,
+    index: usize,
+    keep_traces: bool,
+) -> Result<FrequencyResult, SweepError> {
+    let f = opts.freqs[index];
+    let ts = opts.scenario.sampling.ts_s;
+    let n = (opts.seconds / ts).round() as usize;
+    let fit_end = n / 2;
+    let settle = (opts.settle_s() / ts).round() as usize;
+    // Independent noise per frequency and run, reproducible from the scenario's seed.
+    let seed = |run: u64| opts.scenario.seed.wrapping_mul(1_000_003).wrapping_add(index as u64 * 16 + run);
+    let plant = |run: u64| Bimorph::new(&opts.scenario.clone().with_seed(seed(run)));
+
+    // 1. Identification record, 2. fits.
+    let u = experiment::sine(opts.drive_amplitude, f, ts, n).map_err(|e| SweepError::Core(f, e))?;
+    let y = plant(0)?.run(&u)?;
+    let mut samples = n;
+    let id = identify_at(opts, structure, f, &u, &y).map_err(|e| SweepError::Fit(f, e))?;
 
     // 3. Compensation: α from eq. (25) on the identification record.
     let alpha = experiment::eq25_amplitude(&u, &y);
@@ -445,62 +488,60 @@ pub fn run_frequency(
         if order == 0 {
             return Ok(vec![]);
         }
-        let response = match opts.response {
-            ResponseSource::Model => {
-                experiment::model_harmonics(model, &[order], f, ts, PhaseRule::Model)[0].response
+        let rule = match opts.response {
+            ResponseSource::Model => PhaseRule::Model,
+            ResponseSource::Table { flip_hz } => PhaseRule::Table { flip_hz },
+            ResponseSource::Probe => {
+                let response = match probed.iter().find(|(o, _)| *o == order) {
+                    Some((_, g)) => *g,
+                    None => {
+                        let m = ((PROBE_SECONDS / ts).round() as usize).min(n);
+                        let eps = PROBE_REL * opts.drive_amplitude;
+                        let g = design::probe_response_on(&mut plant(5)?, &u[..m], &y[..m], f, order, eps)
+                            .map_err(|e| SweepError::Probe(f, e))?;
+                        samples += m;
+                        probed.push((order, g));
+                        g
+                    }
+                };
+                return Ok(vec![HarmonicSpec { order, response }]);
             }
-            ResponseSource::Table { flip_hz } => {
-                experiment::model_harmonics(model, &[order], f, ts, PhaseRule::Table { flip_hz })[0].response
-            }
-            ResponseSource::Probe => match probed.iter().find(|(o, _)| *o == order) {
-                Some((_, g)) => *g,
-                None => {
-                    let m = ((PROBE_SECONDS / ts).round() as usize).min(n);
-                    let eps = PROBE_REL * opts.drive_amplitude;
-                    let up = experiment::with_probe(&u[..m], f, order, eps, ts).map_err(core)?;
-                    let yp = plant(5)?.run(&up)?;
-                    samples += m;
-                    let g = experiment::probe_response(&y[..m], &yp, f, order, eps, ts).map_err(core)?;
-                    probed.push((order, g));
-                    g
-                }
-            },
         };
-        Ok(vec![HarmonicSpec { order, response }])
+        Ok(experiment::model_harmonics(model, &[order], f, ts, rule))
     };
     let tracking = |model: &HostModel, h: &[HarmonicSpec<f64>], run: u64| -> Result<Trace, SweepError> {
-        let mut b = plant(run)?;
-        let mut p = |uk: f64| b.step(uk).unwrap_or(f64::NAN);
-        experiment::track(&mut p, model, h, alpha, f, ts, n, set).map_err(core)
+        experiment::track(&mut plant(run)?, model, h, alpha, f, n, set)
+            .map_err(|e| SweepError::Experiment(f, e))
     };
     let finite = |x: f64| if x.is_finite() { x } else { f64::NAN };
     // u_f alone is synthesised from the extended model. The proposed law cancels the
     // harmonic the tracking error under u_f shows (Fig. 13); its u_f comes from the first two
     // equations of the enhanced model (the paper's section 4) when that model carries the
     // same harmonic and is invertible, else from the extended model.
-    let invertible = |m: &HostModel| fit::invertible_for(m, &u);
-    let uf_rls = tracking(&ext_rls, &[], 1)?;
+    let order = id.order;
+    let uf_rls = tracking(&id.ext_rls, &[], 1)?;
     let n_rls = cancel_order(opts.harmonics, f, ts, &uf_rls, settle, alpha);
-    let base_rls = if n_rls == order && invertible(&enh_rls) { &enh_rls } else { &ext_rls };
+    let invertible = n_rls == order && fit::invertible_for(&id.enh_rls, &u);
+    let base_rls = if invertible { &id.enh_rls } else { &id.ext_rls };
     let h_rls = responses(base_rls, n_rls)?;
     let prop_rls = if n_rls == 0 { uf_rls.clone() } else { tracking(base_rls, &h_rls, 2)? };
-    let uf_oe = tracking(&ext_oe, &[], 3)?;
+    let uf_oe = tracking(&id.ext_oe, &[], 3)?;
     let n_oe = cancel_order(opts.harmonics, f, ts, &uf_oe, settle, alpha);
-    let base_oe = if n_oe == order && enh_fit.invertible { &enh_oe } else { &ext_oe };
+    let base_oe = if n_oe == order && id.enh_oe_invertible { &id.enh_oe } else { &id.ext_oe };
     let h_oe = responses(base_oe, n_oe)?;
     let prop_oe = if n_oe == 0 { uf_oe.clone() } else { tracking(base_oe, &h_oe, 4)? };
     samples += 2 * n + usize::from(n_rls > 0) * n + usize::from(n_oe > 0) * n;
     // The peers, tuned from the output-error extended model by the core's rule.
     let peer = |p: Peer, run: u64| -> Result<Trace, SweepError> {
-        let mut b = plant(run)?;
-        let mut step = |uk: f64| b.step(uk).unwrap_or(f64::NAN);
-        experiment::track_peer(&mut step, &ext_oe, p, alpha, f, ts, n, set).map_err(core)
+        experiment::track_peer(&mut plant(run)?, &id.ext_oe, p, alpha, f, n, set)
+            .map_err(|e| SweepError::Experiment(f, e))
     };
     let open = peer(Peer::OpenLoop, 6)?;
     let pi = peer(Peer::Pi, 7)?;
     let orc = peer(Peer::Orc, 8)?;
     samples += 3 * n;
 
+    let [rms_ext_rls, rms_enh_rls, rms_ext_oe, rms_enh_oe] = id.rms;
     let row = Row {
         freq_hz: f,
         rms_extended_um: rms_ext_rls,
@@ -519,18 +560,52 @@ pub fn run_frequency(
         rmse_pi_um: finite(pi.rmse_after(settle)),
         rmse_orc_um: finite(orc.rmse_after(settle)),
     };
-    let traces = keep_traces.then(|| Traces {
+    let traces = keep_traces.then_some(Traces {
         freq_hz: f,
         ts,
         split: fit_end,
         u,
         y,
-        y_extended: y_ext,
-        y_enhanced: y_enh,
+        y_extended: id.y_ext,
+        y_enhanced: id.y_enh,
         track_uf: uf_oe,
         track_proposed: prop_oe,
     });
-    Ok((row, traces, samples as f64 * ts))
+    Ok(FrequencyResult { row, traces, actuator_s: samples as f64 * ts })
+}
+
+/// Most frequencies one sweep runs.
+pub const MAX_FREQUENCIES: usize = 10_000;
+
+/// The frequencies `from, from + step, …` up to `to` (inclusive, up to rounding), each
+/// rounded to 1 nHz.
+pub fn frequencies(from: f64, to: f64, step: f64) -> Result<Vec<f64>, SweepError> {
+    let range = SweepError::Range { from, to, step };
+    if !(from.is_finite() && to.is_finite() && step.is_finite()) || from <= 0.0 || step <= 0.0 || to < from {
+        return Err(range);
+    }
+    let n = ((to - from) / step + 1e-9).floor() as usize + 1;
+    if n > MAX_FREQUENCIES {
+        return Err(range);
+    }
+    Ok((0..n).map(|i| ((from + i as f64 * step) * 1e9).round() / 1e9).collect())
+}
+
+/// A finished sweep as `boucwen sweep --json` prints it.
+#[derive(Clone, Debug, Serialize)]
+pub struct SweepSummary<'a> {
+    /// The structure's resonance (Hz), if its poles are complex.
+    pub structure_resonance_hz: Option<f64>,
+    /// One row per frequency.
+    pub rows: &'a [Row],
+    /// The files written.
+    pub files: Vec<String>,
+    /// Wall-clock time, s.
+    pub wall_s: f64,
+    /// Simulated actuator time, s.
+    pub actuator_s: f64,
+    /// Actuator time per wall-clock time.
+    pub speedup: f64,
 }
 
 /// A finished sweep.
@@ -554,6 +629,18 @@ impl SweepResult {
         self.actuator_s / self.wall_s.max(1e-9)
     }
 
+    /// The summary of `--json`, with the files written.
+    pub fn summary(&self, files: &[PathBuf]) -> SweepSummary<'_> {
+        SweepSummary {
+            structure_resonance_hz: self.structure.resonance_hz,
+            rows: &self.rows,
+            files: files.iter().map(|p| p.display().to_string()).collect(),
+            wall_s: self.wall_s,
+            actuator_s: self.actuator_s,
+            speedup: self.speedup(),
+        }
+    }
+
     /// The whole table as CSV.
     pub fn csv(&self) -> String {
         let mut s = String::from(CSV_HEADER);
@@ -569,26 +656,23 @@ impl SweepResult {
 /// Runs the sweep on all cores; `progress` is called after each frequency.
 pub fn run(opts: &SweepOptions, progress: &(dyn Fn() + Sync)) -> Result<SweepResult, SweepError> {
     if opts.freqs.is_empty() {
-        return Err(SweepError::Options("no frequencies to sweep".into()));
+        return Err(SweepError::NoFrequencies);
     }
     if !(opts.seconds.is_finite() && opts.seconds > 0.0) {
-        return Err(SweepError::Options(format!("--seconds must be > 0 (got {})", opts.seconds)));
+        return Err(SweepError::Seconds(opts.seconds));
     }
     opts.scenario.validate()?;
     let ts = opts.scenario.sampling.ts_s;
     let periods = opts.seconds * 0.5 * opts.freqs.iter().cloned().fold(f64::INFINITY, f64::min);
     if periods < 2.0 {
-        return Err(SweepError::Options(format!(
-            "--seconds {} is too short: the held-out half must hold at least 2 periods of the lowest frequency",
-            opts.seconds
-        )));
+        return Err(SweepError::TooShort(opts.seconds));
     }
     if opts.seconds / ts < 1000.0 {
-        return Err(SweepError::Options(format!("--seconds {} gives fewer than 1000 samples", opts.seconds)));
+        return Err(SweepError::TooFewSamples(opts.seconds));
     }
     let t0 = std::time::Instant::now();
     let structure = identify_structure(&opts.scenario, opts.drive_amplitude)?;
-    let results: Vec<Result<(Row, Option<Traces>, f64), SweepError>> = (0..opts.freqs.len())
+    let results: Vec<Result<FrequencyResult, SweepError>> = (0..opts.freqs.len())
         .into_par_iter()
         .map(|i| {
             let keep = opts.trace_freqs.iter().any(|t| (t - opts.freqs[i]).abs() < 1e-9);
@@ -601,10 +685,57 @@ pub fn run(opts: &SweepOptions, progress: &(dyn Fn() + Sync)) -> Result<SweepRes
     let mut traces = vec![];
     let mut actuator_s = STRUCTURE_SECONDS + LOOP_SECONDS;
     for r in results {
-        let (row, tr, secs) = r?;
-        rows.push(row);
-        traces.extend(tr);
-        actuator_s += secs;
+        let r = r?;
+        rows.push(r.row);
+        traces.extend(r.traces);
+        actuator_s += r.actuator_s;
     }
     Ok(SweepResult { structure, rows, traces, wall_s: t0.elapsed().as_secs_f64(), actuator_s })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn frequency_lists() {
+        assert_eq!(frequencies(1.0, 3.0, 1.0).unwrap(), vec![1.0, 2.0, 3.0]);
+        assert_eq!(frequencies(1.0, 2.0, 0.3).unwrap(), vec![1.0, 1.3, 1.6, 1.9]);
+        assert_eq!(frequencies(14.0, 23.0, 9.0).unwrap(), vec![14.0, 23.0]);
+        assert!(frequencies(0.0, 3.0, 1.0).is_err());
+        assert!(frequencies(3.0, 1.0, 1.0).is_err());
+        assert!(frequencies(1.0, 3.0, f64::NAN).is_err());
+        assert!(frequencies(1.0, 1e6, 1.0).is_err());
+    }
+
+    #[test]
+    fn rows_serialize_with_the_csv_names_and_null_for_nan() {
+        let row = Row {
+            freq_hz: 23.0,
+            rms_extended_um: f64::NAN,
+            rms_enhanced_um: 0.2,
+            rmse_uf_um: 3.5,
+            rmse_proposed_um: 2.1,
+            harmonic_order: 3,
+            cancel_order: 3,
+            cancel_order_oe: 3,
+            alpha_um: 20.2,
+            rms_extended_oe_um: 3.6,
+            rms_enhanced_oe_um: 0.14,
+            rmse_uf_oe_um: 3.56,
+            rmse_proposed_oe_um: 0.24,
+            rmse_open_um: 4.7,
+            rmse_pi_um: 14.3,
+            rmse_orc_um: 1.1,
+        };
+        let j = serde_json::to_value(&row).unwrap();
+        let keys: Vec<&str> = j.as_object().unwrap().keys().map(String::as_str).collect();
+        let mut csv: Vec<&str> = CSV_HEADER.split(',').collect();
+        let mut sorted = keys.clone();
+        sorted.sort_unstable();
+        csv.sort_unstable();
+        assert_eq!(sorted, csv);
+        assert!(j["rms_extended_um"].is_null());
+        assert_eq!(j["harmonic_order"], 3);
+    }
 }

@@ -10,9 +10,9 @@
 //! ## Reading ([`import`], [`import_text`]; [`Record::read`], [`Record::parse`])
 //! ```text
 //! # comment lines start with '#' or '%', anywhere in the file
-//! Time (s)	Voltage	disp_mm
-//! 0	0	0.000012
-//! 0.001	0.0627905195	0.000419
+//! Time (s)   Voltage        disp_mm
+//! 0          0              0.000012
+//! 0.001      0.0627905195   0.000419
 //! ```
 //! - **Separators**: comma, tab, semicolon or runs of spaces, found from the first line that
 //!   is neither blank nor a comment. A trailing separator on data rows is tolerated.
