@@ -10,7 +10,7 @@
 //! |---|---|
 //! | `Saturation` | the driver's rails at 60–85 % of the drive's peak (the amplifier clips; the output flattens through the structure) |
 //! | `SensorRange` | the sensor's range at 55–85 % of the output's excursion above (or below, or both) its mean: the record is clipped there |
-//! | `Creep` | a creep relaxation of 8–20 % of the deflection with a time constant of 0.5–2.5 s, and a drive with an offset of 40–80 % of its amplitude (a sine about zero barely moves the creep's level) |
+//! | `Creep` | a creep relaxation of 10–25 % of the deflection with a time constant of 2–5 s (the record is 10 s: it still relaxes in the held-out half), and a drive with an offset of 40–80 % of its amplitude (a sine about zero barely moves the creep's level) |
 //! | `Delay` | a transport delay of 3–8 ms (the default actuator's is 0.5 ms) |
 //! | `HarmonicAndDrift(n)` | a hidden odd harmonic of order `n` and the sensor drift of [`Effect::Drift`] |
 //! | `SaturationAndHarmonic(n)` | a hidden odd harmonic of order `n` and the driver's rails at 75–90 % of the drive's peak |
@@ -174,8 +174,8 @@ impl SineCase {
                 truth.push(Truth::Saturation { input: false, level });
             }
             SineEffect::Creep => {
-                let amplitude = d.uniform(0.08, 0.2);
-                let tau_s = d.uniform(0.5, 2.5);
+                let amplitude = d.uniform(0.1, 0.25);
+                let tau_s = d.uniform(2.0, 5.0);
                 s.creep.terms.push(CreepTerm { amplitude, tau_s });
                 offset_v = if d.index(2) == 0 { 1.0 } else { -1.0 } * d.uniform(0.4, 0.8) * peak_v;
                 truth.push(Truth::Creep);

@@ -98,6 +98,11 @@ impl Terms {
         self.output_clamp.is_none() && self.creep.is_empty() && self.stiffening.is_empty()
     }
 
+    /// Whether every term but creep acts on the input only.
+    pub fn input_only_but_creep(&self) -> bool {
+        self.output_clamp.is_none() && self.stiffening.is_empty()
+    }
+
     /// Whether there is no term.
     pub fn is_empty(&self) -> bool {
         self.input_clamp.is_none()
