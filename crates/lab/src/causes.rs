@@ -10,8 +10,10 @@
 //!   series ([`clipping_series`]): at least three of the 3rd to 9th reach
 //!   [`SERIES_REL`] of the fundamental, as a flattened sine's do; a stiffening shaped by a
 //!   resonance forces one harmonic mostly.
-//! - **Creep**: the residual's slow part, as for a drift line; the two compete and the one
-//!   that lowers the held-out error more is kept.
+//! - **Creep**: a drive that holds a level away from the rest (an offset): creep follows the
+//!   drive's level, so it shows after a step of level; a drift line competes with it and the
+//!   one that lowers the held-out error more is kept. Under a drive about 0 V a slow trend
+//!   is drift.
 //! - **Input delay**: a single sine cannot tell a delay from the structure's phase (the
 //!   extended model bends its structure to absorb any delay at one frequency), but the step
 //!   onto the drive excites every frequency: the delay is estimated by fitting the model with
@@ -99,16 +101,15 @@ pub fn clipping_series(out: &[Tone]) -> bool {
 /// The saturation and creep terms a record calls for (see the module docs): a clamp of the
 /// output where it sits on plateaus (`y` is the steady part of the output, `noise_um` its
 /// noise floor), a clamp of the drive where its harmonics `out` form a series, creep where
-/// the residual's trend reaches `floor` (µm, as a drift line's) or the drive `u` holds a
-/// level of at least [`CREEP_LEVEL_REL`] of its amplitude `amp_v` away from the rest at 0 V
-/// (a step of level the creep follows). A saturation's evidence is the RMS of the output's
-/// harmonics beyond the fundamental, creep's the trend's RMS.
+/// the drive `u` holds a level of at least [`CREEP_LEVEL_REL`] of its amplitude `amp_v` away
+/// from the rest at 0 V (a step of level the creep follows; under a drive about 0 V the
+/// actuator's level does not change, and a slow trend is drift). A saturation's evidence is
+/// the RMS of the output's harmonics beyond the fundamental, creep's the trend's RMS.
 pub fn candidates(
     residual: &Residual,
     out: &[Tone],
     y: &[f64],
     noise_um: f64,
-    floor: f64,
     (u, amp_v): (&[f64], f64),
 ) -> Vec<Candidate> {
     let power = (residual.rms_um * residual.rms_um).max(1e-300);
@@ -131,7 +132,7 @@ pub fn candidates(
     if clipping_series(out) {
         c.push(saturation(None));
     }
-    if residual.trend_rms_um >= floor || analysis::mean(u).abs() >= CREEP_LEVEL_REL * amp_v {
+    if analysis::mean(u).abs() >= CREEP_LEVEL_REL * amp_v {
         c.push(Candidate {
             kind: Kind::Creep,
             order: None,

@@ -13,7 +13,7 @@
 //! | `Creep` | a creep relaxation of 10–25 % of the deflection with a time constant of 2–5 s (the record is 10 s: it still relaxes in the held-out half), and a drive with an offset of 40–80 % of its amplitude (a sine about zero barely moves the creep's level) |
 //! | `Delay` | a transport delay of 3–8 ms (the default actuator's is 0.5 ms) |
 //! | `HarmonicAndDrift(n)` | a hidden odd harmonic of order `n` and the sensor drift of [`Effect::Drift`] |
-//! | `SaturationAndHarmonic(n)` | a hidden odd harmonic of order `n` and the driver's rails at 75–90 % of the drive's peak |
+//! | `RangeAndHarmonic(n)` | a hidden odd harmonic of order `n` and the sensor's range, as `SensorRange` |
 //!
 //! ## Periodic records ([`PeriodicCase`])
 //! The paper's actuator with the first mode drawn (40–200 Hz, damping 0.02–0.06, no
@@ -46,13 +46,13 @@ pub enum SineEffect {
     Delay,
     /// A hidden odd harmonic of this order and sensor drift.
     HarmonicAndDrift(u32),
-    /// A hidden odd harmonic of this order and driver saturation.
-    SaturationAndHarmonic(u32),
+    /// A hidden odd harmonic of this order and the sensor's range clipping the output.
+    RangeAndHarmonic(u32),
 }
 
 impl SineEffect {
     /// A short name: "saturation", "sensor-range", "creep", "delay", "odd5+drift",
-    /// "saturation+odd3".
+    /// "sensor-range+odd3".
     pub fn name(&self) -> String {
         match self {
             SineEffect::Saturation => "saturation".into(),
@@ -60,14 +60,14 @@ impl SineEffect {
             SineEffect::Creep => "creep".into(),
             SineEffect::Delay => "delay".into(),
             SineEffect::HarmonicAndDrift(n) => format!("odd{n}+drift"),
-            SineEffect::SaturationAndHarmonic(n) => format!("saturation+odd{n}"),
+            SineEffect::RangeAndHarmonic(n) => format!("sensor-range+odd{n}"),
         }
     }
 
     /// The base effect of [`crate::hidden`] the case is drawn from.
     fn base(&self) -> Effect {
         match *self {
-            SineEffect::HarmonicAndDrift(n) | SineEffect::SaturationAndHarmonic(n) => Effect::OddHarmonic(n),
+            SineEffect::HarmonicAndDrift(n) | SineEffect::RangeAndHarmonic(n) => Effect::OddHarmonic(n),
             _ => Effect::Clean,
         }
     }
@@ -130,7 +130,7 @@ impl SineCase {
             SineEffect::Creep => 3,
             SineEffect::Delay => 4,
             SineEffect::HarmonicAndDrift(n) => 10 + u64::from(n),
-            SineEffect::SaturationAndHarmonic(n) => 20 + u64::from(n),
+            SineEffect::RangeAndHarmonic(n) => 20 + u64::from(n),
         };
         let mut d = SplitMix64::new(seed ^ tag.wrapping_mul(0xE77E_C75E_ED00_0001));
         let s = &mut case.scenario;
@@ -142,16 +142,12 @@ impl SineCase {
             truth.push(Truth::Harmonic { order: n, freq_hz: f64::from(n) * case.drive_hz });
         }
         match effect {
-            SineEffect::Saturation | SineEffect::SaturationAndHarmonic(_) => {
-                let frac = if effect == SineEffect::Saturation {
-                    d.uniform(0.6, 0.85)
-                } else {
-                    d.uniform(0.75, 0.9)
-                };
+            SineEffect::Saturation => {
+                let frac = d.uniform(0.6, 0.85);
                 s.driver.limit_v = frac * peak_v * s.driver.gain;
                 truth.push(Truth::Saturation { input: true, level: frac * peak_v });
             }
-            SineEffect::SensorRange => {
+            SineEffect::SensorRange | SineEffect::RangeAndHarmonic(_) => {
                 // The range is set on the record's own excursion (measured below).
                 let frac = d.uniform(0.55, 0.85);
                 let side = d.index(3); // 0: top, 1: bottom, 2: both
@@ -434,7 +430,7 @@ mod tests {
             SineEffect::Creep,
             SineEffect::Delay,
             SineEffect::HarmonicAndDrift(5),
-            SineEffect::SaturationAndHarmonic(3),
+            SineEffect::RangeAndHarmonic(3),
         ] {
             let a = SineCase::generate(e, 4).unwrap();
             let b = SineCase::generate(e, 4).unwrap();
