@@ -312,6 +312,104 @@ pub const RATCHET_REL: f64 = 0.05;
 /// explains too little of the output.
 pub const MIN_FIT_PCT: f64 = 50.0;
 
+/// One finding as JSON: `kind`, `order` (harmonics), `freq_hz`, `band_hz` (distortion),
+/// `level` and `level_unit` (where one applies), `residual_share`, `cause`, `kept`,
+/// `term_rms_um`.
+pub fn finding_json(f: &Finding) -> serde_json::Value {
+    use serde_json::json;
+    let mut o = json!({
+        "kind": f.kind.as_str(),
+        "freq_hz": f.freq_hz,
+        "residual_share": f.residual_share,
+        "cause": f.cause,
+        "kept": f.kept,
+        "term_rms_um": f.term_rms_um,
+    });
+    if let Some(n) = f.order {
+        o["order"] = json!(n);
+    }
+    if let Some((v, unit)) = f.level {
+        o["level"] = json!(v);
+        o["level_unit"] = json!(unit);
+    }
+    if let Some(b) = f.band_hz {
+        o["band_hz"] = json!(b);
+    }
+    o
+}
+
+/// A diagnosis of any drive (see [`diagnose_drive`]).
+#[derive(Clone, Debug)]
+pub enum Outcome {
+    /// A sine drive.
+    Sine(Box<Diagnosis>),
+    /// A periodic drive that is not a sine, or a multisine.
+    Periodic(Box<crate::periodic::PeriodicDiagnosis>),
+}
+
+impl Outcome {
+    /// The findings, most important first.
+    pub fn findings(&self) -> &[Finding] {
+        match self {
+            Outcome::Sine(d) => &d.findings,
+            Outcome::Periodic(d) => &d.findings,
+        }
+    }
+
+    /// The JSON object (see [`Diagnosis::json`] and
+    /// [`crate::periodic::PeriodicDiagnosis::json`]), with `analysis`: `sine` or `periodic`.
+    pub fn json(&self) -> serde_json::Value {
+        let (mut j, kind) = match self {
+            Outcome::Sine(d) => (d.json(), "sine"),
+            Outcome::Periodic(d) => (d.json(), "periodic"),
+        };
+        j["analysis"] = serde_json::json!(kind);
+        j
+    }
+
+    /// The terminal report.
+    pub fn summary(&self, source: &str) -> String {
+        match self {
+            Outcome::Sine(d) => d.summary(source),
+            Outcome::Periodic(d) => d.summary(source),
+        }
+    }
+}
+
+/// Diagnoses the records of one drive, choosing the analysis by the drive found in the first:
+/// a sine (one record: [`diagnose_record`]), or a periodic drive that is not a sine or a
+/// multisine (one record, or several realisations: [`crate::periodic::diagnose`]). A drive
+/// that does not repeat, or none, is one sentence.
+pub fn diagnose_drive(
+    records: &[crate::periodic::Realisation<'_>],
+    ts: f64,
+    th: &Thresholds,
+) -> Result<Outcome, DiagnoseError> {
+    let first = records.first().ok_or(DiagnoseError::Realisations("no record given".into()))?;
+    let n = first.u.len().min(first.y.len());
+    let (u, y) = (&first.u[..n], &first.y[..n]);
+    let (w, d) = steady::steady_window(u, y, ts, first.given).map_err(DiagnoseError::Window)?;
+    match d.kind {
+        DriveKind::None => Err(DiagnoseError::NoDrive { std_v: d.std_v }),
+        DriveKind::Sine if records.len() == 1 => {
+            diagnose_record(u, y, ts, first.t0, first.given, th).map(|d| Outcome::Sine(Box::new(d)))
+        }
+        DriveKind::Sine => Err(DiagnoseError::Realisations(format!(
+            "the drive is {}: a sine record is diagnosed on its own, not as one of several realisations (they are for \
+             multisines)",
+            d.describe()
+        ))),
+        DriveKind::Periodic | DriveKind::Multisine => {
+            crate::periodic::diagnose(records, ts, th).map(|d| Outcome::Periodic(Box::new(d)))
+        }
+        DriveKind::Aperiodic => {
+            steady::check_response(&u[w.start..w.end], &y[w.start..w.end], ts, &d)
+                .map_err(DiagnoseError::NoResponse)?;
+            Err(DiagnoseError::Aperiodic { drive: d.describe() })
+        }
+    }
+}
+
 /// The input delay a record's step onto the drive shows.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct DelayEstimate {
@@ -375,31 +473,7 @@ impl Diagnosis {
     /// and `resonance_hz` (null unless the record supports it) with `resonance_note`.
     pub fn json(&self) -> serde_json::Value {
         use serde_json::json;
-        let findings: Vec<serde_json::Value> = self
-            .findings
-            .iter()
-            .map(|f| {
-                let mut o = json!({
-                    "kind": f.kind.as_str(),
-                    "freq_hz": f.freq_hz,
-                    "residual_share": f.residual_share,
-                    "cause": f.cause,
-                    "kept": f.kept,
-                    "term_rms_um": f.term_rms_um,
-                });
-                if let Some(n) = f.order {
-                    o["order"] = json!(n);
-                }
-                if let Some((v, unit)) = f.level {
-                    o["level"] = json!(v);
-                    o["level_unit"] = json!(unit);
-                }
-                if let Some(b) = f.band_hz {
-                    o["band_hz"] = json!(b);
-                }
-                o
-            })
-            .collect();
+        let findings: Vec<serde_json::Value> = self.findings.iter().map(finding_json).collect();
         let model = |name: String, rms: f64, c: &ModelCheck| {
             let mut o = json!({
                 "model": name,
@@ -634,11 +708,23 @@ pub enum DiagnoseError {
         /// Standard deviation of `u` (V).
         std_v: f64,
     },
-    /// The drive is not a sine (the other kinds are not diagnosed yet).
+    /// The drive is not a sine (for the sine analysis: [`diagnose_record`]).
     NotSine {
         /// The drive, described.
         drive: String,
     },
+    /// The drive does not repeat (a chirp, noise): distortion cannot be told from noise.
+    Aperiodic {
+        /// The drive, described.
+        drive: String,
+    },
+    /// The drive is a sine or none (for the periodic analysis: [`crate::periodic`]).
+    NotPeriodic {
+        /// The drive, described.
+        drive: String,
+    },
+    /// The records given as realisations of one drive are not.
+    Realisations(String),
     /// No steady window, or `--window` outside the record.
     Window(WindowError),
     /// The output does not respond.
@@ -697,9 +783,19 @@ impl std::fmt::Display for DiagnoseError {
             ),
             DiagnoseError::NotSine { drive } => write!(
                 f,
-                "the drive is {drive}; diagnose analyses sine drives only for now (boucwen identify fits a model to \
-                 any drive)"
+                "the drive is {drive}; the sine analysis takes a sine drive (a periodic or multisine drive has its own \
+                 analysis, boucwen diagnose chooses it)"
             ),
+            DiagnoseError::Aperiodic { drive } => write!(
+                f,
+                "the drive is {drive}; diagnose needs a drive that repeats (a sine, a triangle or square, a multisine) \
+                 to tell distortion from noise over whole periods (boucwen identify fits a model to any drive)"
+            ),
+            DiagnoseError::NotPeriodic { drive } => write!(
+                f,
+                "the drive is {drive}; the periodic analysis takes a periodic drive that is not a sine, or a multisine"
+            ),
+            DiagnoseError::Realisations(why) => write!(f, "{why}"),
             DiagnoseError::Window(e) => write!(f, "{e}"),
             DiagnoseError::NoResponse(e) => write!(f, "{e}"),
             DiagnoseError::TooFewPeriods { drive_hz, periods, window_s } => write!(

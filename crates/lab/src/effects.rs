@@ -18,8 +18,9 @@
 //! ## Periodic records ([`PeriodicCase`])
 //! The paper's actuator with the first mode drawn (40–200 Hz, damping 0.02–0.06, no
 //! nonlinear damping), no sensor drift, and one of [`Nonlinearity`]: none, an odd (cubic)
-//! stiffening of the bending centred on the operating point, or an even (quadratic) one.
-//! The stiffening adds 4–12 % to the restoring force at the record's largest deflection.
+//! hardening of the bending centred on the operating point, or an even (quadratic) one of
+//! either sign.
+//! The stiffening adds 10–25 % to the restoring force at the record's largest deflection.
 //! The drive is a symmetric triangle (4–20 Hz) or an odd random-phase multisine over odd
 //! lines of 1 or 2 Hz up to 0.5–1.2 times the resonance, one odd line of four left out, in
 //! two realisations (new phases) of 8 periods each. The hysteresis is there in every case:
@@ -251,7 +252,7 @@ pub const PERIODS: usize = 8;
 /// Realisations of a multisine.
 pub const REALISATIONS: usize = 2;
 /// Share the stiffening adds to the restoring force at the largest deflection (drawn).
-pub const STIFFENING_RANGE: (f64, f64) = (0.04, 0.12);
+pub const STIFFENING_RANGE: (f64, f64) = (0.1, 0.25);
 
 /// A drawn periodic case.
 #[derive(Clone, Debug)]
@@ -334,8 +335,10 @@ impl PeriodicCase {
             let terms = match nonlinearity {
                 // c·q_ref·((q − q0)/q_ref)³ adds c·(X/q_ref)² of the linear force at q0 ± X;
                 // its constant and linear parts are left out (an offset and a stiffness).
+                // Hardening (a cantilever's geometric stiffening): a softening cubic this strong
+                // would lose its restoring force beyond the largest deflection.
                 Nonlinearity::Odd => {
-                    let c = sign * share * (q_ref / x).powi(2);
+                    let c = share * (q_ref / x).powi(2);
                     let z = q0 / q_ref;
                     vec![
                         StiffeningTerm { power: 3, coeff: c },

@@ -17,6 +17,7 @@
 //! | [`diagnose`] | what a model gets wrong on a record, the cause, the term that fixes it |
 //! | [`distortion`] | periodic and multisine drives: lines of whole periods, the BLA, noise and distortion levels at odd and even non-excited lines |
 //! | [`causes`] | the causes a sine diagnosis tries beyond harmonics and drift (saturation, creep, input delay): their evidence and fits |
+//! | [`periodic`] | diagnosis of periodic (not sine) and multisine drives: the data's distortion, the hysteresis model against the linear one, stiffening terms, held out on another realisation or period |
 //! | [`terms`] | terms beyond the fitted model (saturation, input delay, creep, stiffening) and their joint refinement |
 //! | [`report`], [`plot`] | files, pages and SVG figures |
 //! | `hidden`, `messy`, `effects` (feature `fixtures`) | records of the virtual bimorph with a hidden effect (harmonics and drift; saturation, creep, delay, two at once; periodic and multisine drives with a hidden odd or even nonlinearity), and written as bench records come, for tests and benches |
@@ -35,6 +36,7 @@ pub mod fit;
 pub mod hidden;
 #[cfg(feature = "fixtures")]
 pub mod messy;
+pub mod periodic;
 pub mod plot;
 pub mod record;
 pub mod report;
