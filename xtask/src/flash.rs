@@ -1,11 +1,13 @@
 //! `cargo xtask flash`: the firmware for an STM32F4 board (feature `stm32f4`), built,
 //! checked against the budget and flashed with probe-rs.
 //!
-//! This target is build-only on the project's machines: no probe and no emulator of the
-//! chip. With `--build-only` (what CI runs) the task stops after the build and the budget
-//! check; otherwise it needs `probe-rs` on PATH (`cargo install probe-rs-tools`) and a
-//! probe on the board's SWD pins, and runs `probe-rs download --chip CHIP ELF` and
-//! `probe-rs reset --chip CHIP`.
+//! This is the chip's build (crystal and PLL, the DAC, TIM2's tick and ADC trigger, the
+//! UART's own pacing), which no emulator here runs: QEMU's netduinoplus2 runs the build with
+//! the `emulator` feature instead (`cargo xtask qemu --board stm32f4`). No probe is
+//! attached on the project's machines. With `--build-only` (what CI runs) the task stops
+//! after the build and the budget check; otherwise it needs `probe-rs` on PATH
+//! (`cargo install probe-rs-tools`) and a probe on the board's SWD pins, and runs
+//! `probe-rs download --chip CHIP ELF` and `probe-rs reset --chip CHIP`.
 
 use crate::qemu::{FLASH_BUDGET, RAM_BUDGET};
 use crate::{elf, tools};
@@ -21,7 +23,7 @@ pub struct Options {
 
 /// Runs the task; returns every failure.
 pub fn run(opts: &Options) -> Vec<String> {
-    let elf = match tools::build_firmware(Some("stm32f4")) {
+    let elf = match tools::build_firmware(&["stm32f4"]) {
         Ok(e) => e,
         Err(e) => return e,
     };

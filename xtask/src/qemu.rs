@@ -12,17 +12,23 @@
 //! step is `(Σ step ticks − Σ empty ticks) · instructions per tick / N`.
 
 use crate::elf;
-use crate::tools::{self, Finished};
+use crate::session::Session;
+use crate::tools::{self, Board};
 use boucwen_core::compensator::{HarmonicSpec, PhaseRule, Saturation, harmonic_response};
 use boucwen_core::controllers::{TuneOptions, tune};
 use boucwen_core::model::{BoucWenParams, ExtendedParams, HarmonicBranch};
 use boucwen_core::rls::RlsConfig;
+use boucwen_hal::transport::{self, Link};
 use boucwen_lab::design::{ReferenceSpec, controller_params, orc_params};
-use boucwen_link::device::{ClosedLoop, Controller, OnChipPlant, OrcLoop};
+use boucwen_link::Packet;
+use boucwen_link::analog::NoFrontEnd;
+use boucwen_link::device::{Device, Reference};
 use boucwen_link::message::{ControllerParams, Mode, OrcParams, PlantParams};
+use boucwen_link::message::{Diagnostics, RunState, SafetyParams};
 use boucwen_link::{self as wire, Decoder, Message};
 use std::path::Path;
 use std::time::Duration;
+use std::time::Instant;
 
 /// The sample interval of the scenario, s.
 const TS: f64 = 1e-3;
@@ -120,7 +126,7 @@ pub fn frames(case: &Case, samples: u32) -> Result<Vec<u8>, String> {
     let mut out = Vec::new();
     let mut msgs = vec![Message::SetController(c), Message::SetPlant(p)];
     msgs.extend(orc.map(Message::SetOrc));
-    msgs.push(Message::Start { mode: Mode::Control, samples });
+    msgs.push(Message::Start { mode: Mode::Simulated, samples });
     for (seq, m) in msgs.iter().enumerate() {
         out.extend_from_slice(
             &wire::encode(seq as u16, m).map_err(|e| format!("encoding the scenario: {e}"))?,
@@ -129,85 +135,232 @@ pub fn frames(case: &Case, samples: u32) -> Result<Vec<u8>, String> {
     Ok(out)
 }
 
-/// The host's run of the same frames: `(u bits, y bits, d)` per sample.
-pub fn host_run(frames: &[u8]) -> Result<Vec<(u32, u32, f32)>, String> {
-    let (mut c, mut p, mut n, mut orc) = (None, None, None, None);
+/// The messages of the frames file (decoded back: the host runs what the board gets).
+fn messages(frames: &[u8]) -> Result<Vec<Message>, String> {
     let mut dec = Decoder::new();
+    let mut out = Vec::new();
     for &b in frames {
         match dec.push(b) {
-            Some(Ok(pk)) => match pk.msg {
-                Message::SetController(x) => c = Some(x),
-                Message::SetPlant(x) => p = Some(x),
-                Message::SetOrc(x) => orc = Some(x),
-                Message::Start { samples, .. } => n = Some(samples),
-                other => return Err(format!("unexpected message in the frames: {other:?}")),
-            },
+            Some(Ok(p)) => out.push(p.msg),
             Some(Err(e)) => return Err(format!("frames: {e}")),
             None => {}
         }
     }
-    let (c, p, n) = match (c, p, n) {
-        (Some(c), Some(p), Some(n)) => (c, p, n),
-        _ => return Err("frames lack SetController, SetPlant or Start".into()),
-    };
-    if let Some(o) = orc {
-        let mut l = OrcLoop::new(&c, &o, &p).map_err(|e| format!("ORC: {e}"))?;
-        return (0..n)
-            .map(|k| {
-                let s = l.control().map_err(|e| format!("host step {k}: {e}"))?;
-                let y = l.actuate(s.out.u);
-                Ok((s.out.u.to_bits(), y.to_bits(), s.d))
-            })
-            .collect();
+    Ok(out)
+}
+
+/// One sample of telemetry: `(k, u bits, y bits)` (`y` is the measurement the step used).
+type Sample = (u32, u32, u32);
+
+/// The host's run of the same messages: the board's own `Device` in a `Simulated` run,
+/// ticked until the run ends; its telemetry and the reference `d[k]`.
+pub fn host_run(msgs: &[Message]) -> Result<(Vec<Sample>, Vec<f32>), String> {
+    let mut dev = Device::new();
+    let mut out = Vec::new();
+    let mut sink = |b: &[u8]| out.extend_from_slice(b);
+    let (mut n, mut controller) = (0, None);
+    for (seq, m) in msgs.iter().enumerate() {
+        dev.on_packet(Ok(Packet { seq: seq as u16, msg: m.clone() }), &mut sink);
+        match m {
+            Message::Start { samples, .. } => n = *samples,
+            Message::SetController(c) => controller = Some(c.clone()),
+            _ => {}
+        }
+        // The board's answers are checked on the board's side; here only the run counts.
     }
-    let controller = Controller::new(&c).map_err(|e| format!("controller: {e}"))?;
-    let plant = OnChipPlant::new(&p).map_err(|e| format!("plant: {e}"))?;
-    let mut cl = ClosedLoop::new(controller, plant);
-    (0..n)
-        .map(|k| {
-            let s = cl.control().map_err(|e| format!("host step {k}: {e}"))?;
-            let y = cl.actuate(s.out.u);
-            Ok((s.out.u.to_bits(), y.to_bits(), s.d))
-        })
-        .collect()
-}
-
-/// What the firmware printed.
-#[derive(Debug, Default)]
-struct Printed {
-    samples: Vec<(u32, u32, u32)>,
-    clock: Option<(u64, u64)>,
-    timing: Option<(u64, u64, u64, u64)>,
-    stack: Option<u32>,
-    done: bool,
-    errors: Vec<String>,
-}
-
-fn parse(stdout: &str) -> Printed {
-    let mut p = Printed::default();
-    for line in stdout.lines() {
-        let w: Vec<&str> = line.split_whitespace().collect();
-        let num = |i: usize| w.get(i).and_then(|s| s.parse::<u64>().ok());
-        let hex = |i: usize| w.get(i).and_then(|s| u32::from_str_radix(s, 16).ok());
-        match w.first().copied() {
-            Some("sample") => match (num(1), hex(2), hex(3)) {
-                (Some(k), Some(u), Some(y)) => p.samples.push((k as u32, u, y)),
-                _ => p.errors.push(format!("unreadable line: {line}")),
-            },
-            Some("clock") => p.clock = num(1).zip(num(2)),
-            Some("timing") => {
-                p.timing = match (num(1), num(2), num(3), num(4)) {
-                    (Some(a), Some(b), Some(c), Some(d)) => Some((a, b, c, d)),
-                    _ => None,
-                }
+    for _ in 0..n {
+        dev.on_packet(Ok(Packet { seq: 0xFFFF, msg: Message::GetStatus }), &mut |_: &[u8]| {});
+        dev.on_tick(0, &mut NoFrontEnd, &|| 0, &mut sink);
+    }
+    let mut dec = Decoder::new();
+    let mut samples = Vec::new();
+    for &b in &out {
+        match dec.push(b) {
+            Some(Ok(Packet { msg: Message::Telemetry { k, u, y, .. }, .. })) => {
+                samples.push((k, u.to_bits(), y.to_bits()))
             }
-            Some("stack") => p.stack = num(1).map(|s| s as u32),
-            Some("done") => p.done = true,
-            Some("error:") => p.errors.push(line.to_string()),
+            Some(Ok(Packet { msg: Message::Fault(f), .. })) => {
+                return Err(format!("host run: {:?}: {}", f.code, f.text));
+            }
             _ => {}
         }
     }
-    p
+    let c = controller.ok_or("frames lack SetController")?;
+    let mut r = Reference::new(&c);
+    let d = (0..n).map(|_| r.next_sample()).collect();
+    Ok((samples, d))
+}
+
+/// What the board sent during a self-test.
+struct BoardRun {
+    samples: Vec<Sample>,
+    diag: Option<Diagnostics>,
+    faults: Vec<String>,
+}
+
+/// Runs the self-test's messages on the board over its link: configuration (with a host
+/// timeout long enough for a run the host only watches), the run, then the diagnostics.
+fn board_run(pty: &str, msgs: &[Message], n: u32) -> Result<BoardRun, String> {
+    let port = transport::open_serial(pty, crate::BAUD).map_err(|e| e.to_string())?;
+    let mut link = Link::new(port);
+    let timeout = Duration::from_secs(2);
+    let mut faults = Vec::new();
+    link.flush_peer().map_err(|e| e.to_string())?;
+    let quiet = SafetyParams { host_timeout_ms: 60_000, ..SafetyParams::DEFAULT };
+    for m in std::iter::once(&Message::SetSafety(quiet)).chain(msgs) {
+        let want = m.kind();
+        let ok = link
+            .request(m, 3, timeout, |seq, a| match a {
+                Message::Ack { kind, seq: s } if *kind == want && *s == seq => Some(Ok(())),
+                Message::Fault(f) if f.seq == seq => Some(Err(format!("{:?}: {}", f.code, f.text))),
+                _ => None,
+            })
+            .map_err(|e| e.to_string())?;
+        match ok {
+            Some(Ok(())) => {}
+            Some(Err(e)) => return Err(format!("the board refused {m:?}: {e}")),
+            None => return Err(format!("no answer from the board to message kind 0x{want:02x}")),
+        }
+    }
+    let mut samples = Vec::with_capacity(n as usize);
+    loop {
+        match link.recv(Instant::now() + Duration::from_secs(10)).map_err(|e| e.to_string())? {
+            None => {
+                faults.push(format!("the board went silent after {} samples", samples.len()));
+                break;
+            }
+            Some(Err(e)) => faults.push(format!("a damaged frame from the board: {e}")),
+            Some(Ok(p)) => match p.msg {
+                Message::Telemetry { k, u, y, .. } => samples.push((k, u.to_bits(), y.to_bits())),
+                Message::Status(s) if s.state != RunState::Running as u8 => break,
+                Message::Fault(f) => faults.push(format!("{:?}: {}", f.code, f.text)),
+                _ => {}
+            },
+        }
+    }
+    let diag = link
+        .request(&Message::GetDiagnostics, 3, timeout, |_, m| match m {
+            Message::Diagnostics(d) => Some(*d),
+            _ => None,
+        })
+        .map_err(|e| e.to_string())?;
+    Ok(BoardRun { samples, diag, faults })
+}
+
+/// Instructions per clock unit, from the board's calibration.
+pub fn insns_per_unit(d: &Diagnostics) -> f64 {
+    if d.calib_ticks == 0 { f64::NAN } else { d.calib_insns as f64 / d.calib_ticks as f64 }
+}
+
+/// One case's results.
+struct CaseResult {
+    samples: usize,
+    mismatches: usize,
+    max_abs_diff: f64,
+    insns_per_sample: f64,
+    max_step_insns: f64,
+    isr_insns_mean: f64,
+    stack: u32,
+    rmse_um: f64,
+}
+
+/// Runs `case` on the board in QEMU and compares it with the host; failures go to `failures`.
+fn run_case(
+    board: Board,
+    elf: &Path,
+    case: &Case,
+    samples: u32,
+    failures: &mut Vec<String>,
+) -> Option<CaseResult> {
+    let mut fail = |what: String| failures.push(format!("{}: {what}", case.name));
+    let msgs = match frames(case, samples).and_then(|f| messages(&f)) {
+        Ok(m) => m,
+        Err(e) => {
+            fail(e);
+            return None;
+        }
+    };
+    let (host, d) = match host_run(&msgs) {
+        Ok(h) => h,
+        Err(e) => {
+            fail(e);
+            return None;
+        }
+    };
+    eprintln!("running the self-test on {} in QEMU: {} ({samples} samples)", board.name(), case.name);
+    let session = match Session::start(board, elf, true) {
+        Ok(s) => s,
+        Err(e) => {
+            fail(e);
+            return None;
+        }
+    };
+    let run = match board_run(&session.pty, &msgs, samples) {
+        Ok(r) => r,
+        Err(e) => {
+            fail(e);
+            return None;
+        }
+    };
+    drop(session);
+    for f in &run.faults {
+        fail(f.clone());
+    }
+    if run.samples.len() != host.len() {
+        fail(format!("the board sent {} samples, the host computed {}", run.samples.len(), host.len()));
+    }
+    let (mut mismatches, mut max_abs_diff, mut first_bad) = (0usize, 0.0f64, None);
+    for &(k, u, y) in &run.samples {
+        let Some(&(hk, hu, hy)) = host.get(k as usize) else {
+            fail(format!("the board sent sample {k}, beyond the run"));
+            continue;
+        };
+        let du = (f32::from_bits(u) as f64 - f32::from_bits(hu) as f64).abs();
+        max_abs_diff = if du.is_nan() { f64::INFINITY } else { max_abs_diff.max(du) };
+        if (k, u, y) != (hk, hu, hy) {
+            mismatches += 1;
+            first_bad.get_or_insert((k, u, hu, y, hy));
+        }
+    }
+    if let Some((k, u, hu, y, hy)) = first_bad {
+        fail(format!(
+            "{mismatches} samples differ from the host; first at k = {k}: u {u:08x} vs {hu:08x}, y {y:08x} vs {hy:08x}"
+        ));
+    }
+    let Some(diag) = run.diag else {
+        fail("no diagnostics from the board".into());
+        return None;
+    };
+    if diag.tx_dropped > 0 || diag.missed_ticks > 0 {
+        fail(format!(
+            "the board dropped {} frames (transmit queue full) and missed {} ticks",
+            diag.tx_dropped, diag.missed_ticks
+        ));
+    }
+    let per = insns_per_unit(&diag);
+    let steps = diag.steps.max(1) as f64;
+    let overhead = diag.clock_overhead_ticks as f64;
+    let insns_per_sample = (diag.step_ticks_sum as f64 / steps - overhead) * per;
+    // The interrupts of the run's ticks, one control step each.
+    let isr_insns_mean = (diag.isr_ticks_sum as f64 / steps - overhead) * per;
+    // Tracking: y the step used is y[k-1].
+    let settle = 1500.min(run.samples.len());
+    let tail: Vec<f64> = run.samples[settle..]
+        .iter()
+        .filter(|s| s.0 >= 1)
+        .map(|&(k, _, y)| f32::from_bits(y) as f64 - d[k as usize - 1] as f64)
+        .collect();
+    let rmse_um = (tail.iter().map(|e| e * e).sum::<f64>() / tail.len().max(1) as f64).sqrt();
+    Some(CaseResult {
+        samples: run.samples.len(),
+        mismatches,
+        max_abs_diff,
+        insns_per_sample,
+        max_step_insns: diag.step_ticks_max as f64 * per,
+        isr_insns_mean,
+        stack: diag.stack_peak_bytes,
+        rmse_um,
+    })
 }
 
 /// The self-test's figures (worst case over the cases).
@@ -224,152 +377,15 @@ pub struct Summary {
     pub ram_bytes: u32,
 }
 
-/// One case's results.
-struct CaseResult {
-    samples: usize,
-    mismatches: usize,
-    max_abs_diff: f64,
-    insns_per_tick: f64,
-    insns_per_sample: f64,
-    max_step_insns: f64,
-    stack: u32,
-    rmse_um: f64,
-}
-
-/// Runs `case` in QEMU and compares it with the host; failures go to `failures`.
-fn run_case(
-    elf: &Path,
-    case: &Case,
-    index: usize,
-    samples: u32,
-    failures: &mut Vec<String>,
-) -> Option<CaseResult> {
-    let feature = case.orc.then_some("orc");
-    let mut fail = |what: String| failures.push(format!("{}: {what}", case.name));
-    let frames = match frames(case, samples) {
-        Ok(f) => f,
-        Err(e) => {
-            fail(e);
-            return None;
-        }
-    };
-    let path = tools::firmware_target_dir(feature).join(format!("selftest-{index}.frames"));
-    if let Err(e) = std::fs::write(&path, &frames) {
-        fail(format!("{}: {e}", path.display()));
-        return None;
-    }
-    let host = match host_run(&frames) {
-        Ok(h) => h,
-        Err(e) => {
-            fail(e);
-            return None;
-        }
-    };
-    let path_str = path.to_string_lossy().into_owned();
-    if path_str.contains([' ', ',']) {
-        fail(format!("{path_str}: the frames path must not contain spaces or commas (QEMU arguments)"));
-        return None;
-    }
-    eprintln!("running the self-test in QEMU: {} ({samples} samples)", case.name);
-    let cmd = tools::qemu_command(elf, &["selftest", &path_str], "null");
-    let Finished { status, stdout, stderr } = match tools::run_with_limit(cmd, Duration::from_secs(300)) {
-        Ok(f) => f,
-        Err(e) => {
-            fail(e);
-            return None;
-        }
-    };
-    match status {
-        None => fail("QEMU did not finish within 300 s".into()),
-        Some(s) if !s.success() => fail(format!("the firmware exited with {s}")),
-        _ => {}
-    }
-    if !stderr.trim().is_empty() {
-        eprintln!("qemu stderr: {}", stderr.trim());
-    }
-    let printed = parse(&stdout);
-    for e in &printed.errors {
-        fail(e.clone());
-    }
-    if !printed.done {
-        fail("the firmware did not finish the self-test (no 'done' line)".into());
-    }
-    // Bit-for-bit comparison.
-    if printed.samples.len() != host.len() {
-        fail(format!(
-            "the firmware printed {} samples, the host computed {}",
-            printed.samples.len(),
-            host.len()
-        ));
-    }
-    let (mut mismatches, mut max_abs_diff, mut first_bad) = (0usize, 0.0f64, None);
-    for (i, (&(k, u, y), &(hu, hy, _))) in printed.samples.iter().zip(&host).enumerate() {
-        if k as usize != i {
-            fail(format!("sample line {i} carries index {k}"));
-            break;
-        }
-        let d = (f32::from_bits(u) as f64 - f32::from_bits(hu) as f64).abs();
-        max_abs_diff = if d.is_nan() { f64::INFINITY } else { max_abs_diff.max(d) };
-        if u != hu || y != hy {
-            mismatches += 1;
-            first_bad.get_or_insert((k, u, hu, y, hy));
-        }
-    }
-    if let Some((k, u, hu, y, hy)) = first_bad {
-        fail(format!(
-            "{mismatches} samples differ from the host; first at k = {k}: u {u:08x} vs {hu:08x}, y {y:08x} vs {hy:08x}"
-        ));
-    }
-    let n = printed.samples.len();
-    // Timing.
-    let insns_per_tick = match printed.clock {
-        Some((insns, ticks)) if ticks > 0 => insns as f64 / ticks as f64,
-        _ => {
-            fail("no clock calibration line".into());
-            f64::NAN
-        }
-    };
-    let (insns_per_sample, max_step_insns) = match printed.timing {
-        Some((tn, step, empty, max)) if tn > 0 => {
-            ((step as f64 - empty as f64) * insns_per_tick / tn as f64, max as f64 * insns_per_tick)
-        }
-        _ => {
-            fail("no timing line".into());
-            (f64::NAN, f64::NAN)
-        }
-    };
-    let stack = printed.stack.unwrap_or_else(|| {
-        fail("no stack line".into());
-        0
-    });
-    // Tracking on the (identical) host run, after the fade-in and a settling second.
-    let settle = 1500.min(host.len()).min(n);
-    let tail: Vec<f64> = host[settle..]
-        .iter()
-        .zip(&printed.samples[settle..])
-        .map(|(&(_, _, d), &(_, _, y))| f32::from_bits(y) as f64 - d as f64)
-        .collect();
-    let rmse_um = (tail.iter().map(|e| e * e).sum::<f64>() / tail.len().max(1) as f64).sqrt();
-    Some(CaseResult {
-        samples: n,
-        mismatches,
-        max_abs_diff,
-        insns_per_tick,
-        insns_per_sample,
-        max_step_insns,
-        stack,
-        rmse_um,
-    })
-}
-
 /// Builds (with the `orc` feature if `orc`), runs every case (the ORC's too if `orc`) and
 /// checks; returns the figures and every failure found.
-pub fn run(samples: u32, json: bool, orc: bool) -> (Option<Summary>, Vec<String>) {
+pub fn run(board: Board, samples: u32, json: bool, orc: bool) -> (Option<Summary>, Vec<String>) {
     let mut failures = Vec::new();
     if let Err(mut e) = tools::check(&[&tools::QEMU]) {
         failures.append(&mut e);
     }
-    let elf = match tools::build_firmware(orc.then_some("orc")) {
+    let features = board.qemu_features(if orc { &["orc"] } else { &[] });
+    let elf = match tools::build_firmware(&features) {
         Ok(e) => e,
         Err(mut e) => {
             failures.append(&mut e);
@@ -392,16 +408,15 @@ pub fn run(samples: u32, json: bool, orc: bool) -> (Option<Summary>, Vec<String>
     let out = |s: String| if json { eprintln!("{s}") } else { println!("{s}") };
     let mut results = Vec::new();
     let cases: Vec<&Case> = CASES.iter().chain(orc.then_some(&ORC_CASE)).collect();
-    for (i, case) in cases.into_iter().enumerate() {
-        let Some(r) = run_case(&elf, case, i, samples, &mut failures) else { continue };
+    for case in cases {
+        let Some(r) = run_case(board, &elf, case, samples, &mut failures) else { continue };
         out(format!("{}:", case.name));
         out(format!(
             "  {} samples, {} differ from the host (max |Δu| = {:e} V); tracking RMSE after 1.5 s {:.4} µm of 20 µm",
             r.samples, r.mismatches, r.max_abs_diff, r.rmse_um
         ));
         out(format!(
-            "  control step ({}): {:.1} instructions mean, {:.0} ± {:.0} largest; \
-             clock {:.3} instructions per 25 MHz tick; peak stack {} B",
+            "  control step ({}): {:.1} instructions mean, {:.0} largest; whole tick interrupt {:.1} mean; peak stack {} B",
             if case.orc {
                 "reference, PI, odd-harmonic internal model"
             } else {
@@ -409,8 +424,7 @@ pub fn run(samples: u32, json: bool, orc: bool) -> (Option<Summary>, Vec<String>
             },
             r.insns_per_sample,
             r.max_step_insns,
-            r.insns_per_tick,
-            r.insns_per_tick,
+            r.isr_insns_mean,
             r.stack
         ));
         if r.insns_per_sample.is_nan() || r.insns_per_sample > STEP_BUDGET_INSNS {

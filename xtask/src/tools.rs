@@ -1,10 +1,8 @@
 //! External tools: finding them (with the package that provides each), building the
 //! firmware, running a child process with a time limit.
 
-use std::io::Read;
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, ExitStatus, Stdio};
-use std::time::{Duration, Instant};
+use std::process::Command;
 
 /// A tool the tasks need, and how to get it on Debian.
 pub struct Tool {
@@ -49,11 +47,44 @@ pub fn root() -> PathBuf {
     here.parent().map_or(here.clone(), Path::to_path_buf)
 }
 
+/// The board a firmware task is for.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum Board {
+    /// QEMU's mps2-an386 (Cortex-M4F, CMSDK UART and timers).
+    Mps2,
+    /// An STM32F405/407; in QEMU, netduinoplus2 (built with the `emulator` feature).
+    Stm32f4,
+}
+
+impl Board {
+    /// The firmware features of this board's QEMU build (plus `extra`).
+    pub fn qemu_features(self, extra: &[&'static str]) -> Vec<&'static str> {
+        let mut f = match self {
+            Board::Mps2 => vec![],
+            Board::Stm32f4 => vec!["stm32f4", "emulator"],
+        };
+        f.extend_from_slice(extra);
+        f
+    }
+
+    /// Its name in reports.
+    pub fn name(self) -> &'static str {
+        match self {
+            Board::Mps2 => "mps2-an386",
+            Board::Stm32f4 => "stm32f4 (QEMU netduinoplus2)",
+        }
+    }
+}
+
 /// Where the firmware is built: `$CARGO_TARGET_DIR/firmware`, else `<root>/target/firmware`
-/// (`firmware-FEATURE` for a build with a feature, so builds do not overwrite each other).
-pub fn firmware_target_dir(feature: Option<&str>) -> PathBuf {
+/// (`firmware-F1-F2` for a build with features, so builds do not overwrite each other).
+pub fn firmware_target_dir(features: &[&str]) -> PathBuf {
     let base = std::env::var_os("CARGO_TARGET_DIR").map_or_else(|| root().join("target"), PathBuf::from);
-    base.join(feature.map_or_else(|| "firmware".to_string(), |f| format!("firmware-{f}")))
+    if features.is_empty() {
+        base.join("firmware")
+    } else {
+        base.join(format!("firmware-{}", features.join("-")))
+    }
 }
 
 /// The firmware crate's directory.
@@ -61,20 +92,20 @@ pub fn firmware_dir() -> PathBuf {
     root().join("crates").join("firmware")
 }
 
-/// Builds the firmware (release, with the cargo `feature` if given: `orc`, `stm32f4`) and
-/// returns the ELF's path.
-pub fn build_firmware(feature: Option<&str>) -> Result<PathBuf, Vec<String>> {
+/// Builds the firmware (release, with the cargo `features`: `orc`, `stm32f4`,
+/// `emulator`) and returns the ELF's path.
+pub fn build_firmware(features: &[&str]) -> Result<PathBuf, Vec<String>> {
     check(&[&RUSTC, &CARGO, &RUST_SRC, &LLD])?;
-    let target_dir = firmware_target_dir(feature);
+    let target_dir = firmware_target_dir(features);
     eprintln!(
         "building the firmware (thumbv7em-none-eabihf{}) in {}",
-        feature.map_or(String::new(), |f| format!(", feature {f}")),
+        if features.is_empty() { String::new() } else { format!(", features {}", features.join(",")) },
         target_dir.display()
     );
     let mut cmd = Command::new(CARGO.path);
     cmd.args(["build", "--release"]);
-    if let Some(f) = feature {
-        cmd.args(["--features", f]);
+    if !features.is_empty() {
+        cmd.args(["--features", &features.join(",")]);
     }
     let status = cmd
         .current_dir(firmware_dir())
@@ -100,67 +131,22 @@ pub fn build_firmware(feature: Option<&str>) -> Result<PathBuf, Vec<String>> {
     Ok(elf)
 }
 
-/// The QEMU command for the firmware: `mps2-an386`, no display, semihosting on (with
-/// `semihosting_args` as its command line), one instruction per virtual nanosecond.
-pub fn qemu_command(elf: &Path, semihosting_args: &[&str], serial: &str) -> Command {
-    let mut sh = String::from("enable=on,target=native");
-    for a in semihosting_args {
-        sh.push_str(",arg=");
-        sh.push_str(a);
-    }
+/// The QEMU command for the firmware on `board`, its link on a pseudo-terminal: no
+/// display, one instruction per virtual nanosecond. On mps2-an386 the board's UART0 is
+/// QEMU's first serial port; on netduinoplus2 USART2 is the second (`-serial null -serial
+/// pty`). With `virtual_only` the virtual clock never follows the wall clock
+/// (`sleep=off`: an idle board skips to its next timer event), so a loaded host cannot
+/// make the board miss ticks; runs where the host must answer within a tick (hardware in
+/// the loop) keep the default, where an idle board's time passes with the wall clock.
+pub fn qemu_command(board: Board, elf: &Path, virtual_only: bool) -> Command {
     let mut c = Command::new(QEMU.path);
-    c.args(["-machine", "mps2-an386", "-cpu", "cortex-m4", "-nographic", "-monitor", "none"])
-        .args(["-serial", serial])
-        .args(["-semihosting-config", &sh])
-        .args(["-icount", "shift=0"])
+    match board {
+        Board::Mps2 => c.args(["-machine", "mps2-an386", "-cpu", "cortex-m4"]).args(["-serial", "pty"]),
+        Board::Stm32f4 => c.args(["-machine", "netduinoplus2"]).args(["-serial", "null", "-serial", "pty"]),
+    };
+    c.args(["-nographic", "-monitor", "none"])
+        .args(["-icount", if virtual_only { "shift=0,sleep=off" } else { "shift=0" }])
         .arg("-kernel")
         .arg(elf);
     c
-}
-
-/// What a child printed and how it ended.
-pub struct Finished {
-    /// Exit status (`None`: killed at the time limit).
-    pub status: Option<ExitStatus>,
-    /// Standard output.
-    pub stdout: String,
-    /// Standard error.
-    pub stderr: String,
-}
-
-/// Runs `cmd` to completion or until `limit`, collecting its output.
-pub fn run_with_limit(mut cmd: Command, limit: Duration) -> Result<Finished, String> {
-    let mut child: Child = cmd
-        .stdin(Stdio::null())
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .map_err(|e| format!("cannot start {:?}: {e}", cmd.get_program()))?;
-    let mut out = child.stdout.take().ok_or("no stdout pipe")?;
-    let mut err = child.stderr.take().ok_or("no stderr pipe")?;
-    let out_thread = std::thread::spawn(move || {
-        let mut s = Vec::new();
-        let _ = out.read_to_end(&mut s);
-        s
-    });
-    let err_thread = std::thread::spawn(move || {
-        let mut s = Vec::new();
-        let _ = err.read_to_end(&mut s);
-        s
-    });
-    let start = Instant::now();
-    let status = loop {
-        match child.try_wait().map_err(|e| e.to_string())? {
-            Some(s) => break Some(s),
-            None if start.elapsed() > limit => {
-                let _ = child.kill();
-                let _ = child.wait();
-                break None;
-            }
-            None => std::thread::sleep(Duration::from_millis(20)),
-        }
-    };
-    let stdout = String::from_utf8_lossy(&out_thread.join().unwrap_or_default()).into_owned();
-    let stderr = String::from_utf8_lossy(&err_thread.join().unwrap_or_default()).into_owned();
-    Ok(Finished { status, stdout, stderr })
 }

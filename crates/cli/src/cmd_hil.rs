@@ -12,9 +12,10 @@
 //!    out in its tracking error is the one the board cancels, with the identified model's
 //!    response at `n·f` (none if no harmonic stands out).
 //!
-//! Then the board runs `--samples` samples ([`boucwen_hal::hil`]); the host prints what
-//! was exchanged, lost and corrupted, and the tracking RMSE beside the one the same
-//! controller reaches in-process without a link. Exits non-zero when a sample is not
+//! Then the board runs `--samples` samples ([`boucwen_hal::hil`]), in lockstep unless
+//! `--free-running`; the host prints what was exchanged, lost and corrupted, the tracking
+//! RMSE beside the one the same controller reaches in-process without a link, and, after
+//! it falls silent, how the board took its drive to 0 V. Exits non-zero when a sample is not
 //! accounted for or a command differs from the host's shadow controller.
 
 use anyhow::{anyhow, bail};
@@ -50,7 +51,12 @@ pub struct HilArgs {
     /// Scenario file of the virtual bimorph (TOML); the paper's actuator if omitted.
     #[arg(long)]
     scenario: Option<PathBuf>,
-    /// End with one JSON line: samples, samples_accounted, corrupted_frames, lost_frames, rmse_um.
+    /// A free-running control run: a measurement that misses the board's next tick is
+    /// missing (by default the run is in lockstep: the board's tick waits for it, boundedly).
+    #[arg(long)]
+    free_running: bool,
+    /// End with one JSON line: samples, samples_accounted, corrupted_frames, lost_frames,
+    /// rmse_um, safe_state_ms, lockstep.
     #[arg(long)]
     json: bool,
 }
@@ -87,7 +93,12 @@ pub fn run(a: HilArgs) -> anyhow::Result<()> {
         .map_err(|e| anyhow!("designing on the virtual bimorph at {} Hz: {e}", a.freq))?;
     eprintln!("{design}");
     let params = design.params;
-    let opts = HilOptions { fault_rate: rate, seed: a.seed, ..HilOptions::new(a.samples) };
+    let opts = HilOptions {
+        fault_rate: rate,
+        seed: a.seed,
+        lockstep: !a.free_running,
+        ..HilOptions::new(a.samples)
+    };
     let ideal = hil::without_link(&mut Bimorph::new(&scenario)?, &params, a.samples, opts.settle_samples)?;
     let report = hil::run_on_port(&a.port, a.baud, &mut Bimorph::new(&scenario)?, &params, &opts)
         .map_err(|e| anyhow!("{}: {e}", a.port))?;

@@ -11,7 +11,7 @@
 use crate::cmd_diagnose::import_json;
 use crate::record_args::RecordArgs;
 use boucwen_lab::diagnose::ModelCheck;
-use boucwen_lab::fit::{self, HostModel, ModelSpec, OeOptions};
+use boucwen_lab::fit::{self, Averaging, DataUsed, Fit, HostModel, ModelSpec, OeOptions};
 use boucwen_lab::steady::{self, Drive, DriveKind};
 use boucwen_lab::{analysis, diagnose, sweep};
 use std::path::PathBuf;
@@ -143,18 +143,23 @@ pub fn run(a: IdentifyArgs) -> Result<(), String> {
         }
     };
     let spec = ModelSpec { drive_hz: drive_hz.max(1e-3), harmonics, drift_degree: None };
+    // The output is averaged over periods only in steady state: the model has no drift term.
     let mut opt = OeOptions {
         lm_starts: diagnose::TERM_STARTS,
         require_invertible: a.invertible,
+        averaging: Averaging::Periods,
         ..diagnose::fit_options(split, ts)
     };
     opt.skip = start.max(opt.skip.min(split.saturating_sub(diagnose::FIT_MIN_SAMPLES)));
-    opt.max_samples = split.min(opt.skip + (diagnose::MAX_WINDOW_S / ts) as usize);
-    let model = match a.method {
+    let (model, fit) = match a.method {
         Method::Oe => {
-            fit::fit_oe(u, y, ts, split, &spec, &[], &opt).map_err(|e| format!("{name}: {e}"))?.model
+            let t0 = std::time::Instant::now();
+            let fit = fit::fit_oe(u, y, ts, split, &spec, &[], &opt).map_err(|e| format!("{name}: {e}"))?;
+            (fit.model.clone(), Some((fit, t0.elapsed().as_secs_f64())))
         }
-        Method::Rls => fit::fit_paper_rls(u, y, ts, split, &spec).map_err(|e| format!("{name}: {e}"))?,
+        Method::Rls => {
+            (fit::fit_paper_rls(u, y, ts, split, &spec).map_err(|e| format!("{name}: {e}"))?, None)
+        }
     };
     let sim = model.simulate(u, ts).map_err(|e| format!("{name}: {e}"))?;
     let check = ModelCheck::of(&model, &sim[split..], &y[split..], ts);
@@ -176,10 +181,16 @@ pub fn run(a: IdentifyArgs) -> Result<(), String> {
         let mut j = json(&o, &a);
         j["file"] = serde_json::json!(name);
         j["import"] = import_json(&imported);
+        if let Some((f, seconds)) = &fit {
+            j["fit"] = fit_json(f, *seconds);
+        }
         println!("{j}");
     } else {
         println!("read as {}", imported.info.describe());
         print!("{}", text(&o, &name, &a, ts));
+        if let Some((f, _)) = &fit {
+            println!("{}", fit_text(f));
+        }
     }
     match &o.check.unstable {
         Some(why) => Err(format!(
@@ -206,6 +217,37 @@ fn method_name(m: Method) -> &'static str {
         Method::Oe => "output error",
         Method::Rls => "paper RLS",
     }
+}
+
+/// How the output-error fit ended, what it was computed on and how long it took (s).
+fn fit_json(f: &Fit, seconds: f64) -> serde_json::Value {
+    let data = match f.data {
+        DataUsed::Samples { from, to } => serde_json::json!({"kind": "samples", "from": from, "to": to}),
+        DataUsed::Periods { from, to, periods, scored } => serde_json::json!({
+            "kind": "average_period", "from": from, "to": to, "periods": periods, "scored_samples": scored,
+        }),
+    };
+    serde_json::json!({
+        "stop": f.stop.as_str(),
+        "iterations": f.iterations,
+        "evaluations": f.evaluations,
+        "criterion_rms_um": f.rms_fit,
+        "data": data,
+        "seconds": seconds,
+    })
+}
+
+fn fit_text(f: &Fit) -> String {
+    let data = match f.data {
+        DataUsed::Samples { from, to } => format!("samples {from}..{to}"),
+        DataUsed::Periods { from, to, periods, .. } => {
+            format!("the average of {periods} periods of samples {from}..{to}")
+        }
+    };
+    format!(
+        "fit on {data}: stopped after {} iterations ({}), {} evaluations",
+        f.iterations, f.stop, f.evaluations
+    )
 }
 
 fn json(o: &Outcome, a: &IdentifyArgs) -> serde_json::Value {

@@ -82,6 +82,10 @@ fn identify_fits_the_extended_and_the_enhanced_model_by_both_methods() {
     };
     let ext = run(&[]);
     assert_eq!(ext["model"], "extended");
+    // The fit says why it stopped: by a criterion, not the iteration limit.
+    let stop = ext["fit"]["stop"].as_str().expect("stop reason");
+    assert!(["cost_decrease", "step_size", "gradient"].contains(&stop), "{ext}");
+    assert_eq!(ext["fit"]["data"]["kind"], "average_period", "{ext}");
     let enh = run(&["--model", "enhanced"]);
     // The branch order is found in the data: the hidden 5th.
     assert_eq!(enh["model"], "enhanced(5)");
@@ -89,6 +93,7 @@ fn identify_fits_the_extended_and_the_enhanced_model_by_both_methods() {
     assert!(enh["rms_um"].as_f64().unwrap() < 0.5 * ext["rms_um"].as_f64().unwrap(), "{enh} vs {ext}");
     let rls = run(&["--model", "enhanced", "--harmonics", "5", "--method", "rls"]);
     assert_eq!(rls["method"], "paper RLS");
+    assert!(rls.get("fit").is_none(), "{rls}");
     assert!(rls["rms_um"].as_f64().unwrap().is_finite());
     // Text output names the parameters.
     let o = boucwen(&["identify", data]);

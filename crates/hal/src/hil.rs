@@ -24,6 +24,23 @@
 //! sample: steps with and without a measurement add up to `n - 1`, and agree with what the
 //! host learnt sample by sample ([`HilReport::samples_accounted`]).
 //!
+//! ## Lockstep
+//! The host's actuator is a simulation on an operating system that is not real-time, and
+//! at 460,800 baud a command and its measurement take 0.80 ms of the 1 ms period on the
+//! line alone. By default the run is in lockstep ([`Mode::Lockstep`]): the board's tick
+//! waits for the previous sample's measurement (boundedly), so the loop is the loop of
+//! the plant's sample index whatever the host's latency; [`HilOptions::lockstep`] `false`
+//! runs a free-running control run, where a measurement later than the next tick is
+//! missing.
+//!
+//! ## Safe state at the end
+//! After the run the host stays silent. The board, idle with its drive where the last
+//! command left it, declares the host lost after [`SafetyParams::host_timeout_ms`] and ramps
+//! the drive to 0 V (telemetry flagged [`command_flags::SAFE_RAMP`], then
+//! [`Message::Safe`]). The host checks the ramp (monotonic, steps of at most the slew,
+//! ending at 0 V) and reports the time from its last frame to 0 V as the board counted it
+//! ([`HilReport::safe_state`]).
+//!
 //! ## Shadow check
 //! The host runs the same controller ([`boucwen_link::device::Controller`], `f32`, the
 //! same code as the firmware) fed exactly what the board reports it used, and compares
@@ -34,7 +51,9 @@
 use crate::transport::{FaultCounts, Link, LinkStats, Port, TransportError};
 use boucwen_core::Plant;
 use boucwen_link::device::{Controller, Reference};
-use boucwen_link::message::{ControllerParams, Fault, Message, Mode, RunState, Status};
+use boucwen_link::message::{
+    ControllerParams, Fault, Message, Mode, RunState, SafeReason, SafetyParams, Status, command_flags,
+};
 use serde::Serialize;
 use std::fmt;
 use std::time::{Duration, Instant};
@@ -54,11 +73,16 @@ pub struct HilOptions {
     pub reply_timeout: Duration,
     /// Silence on the link that ends the run's exchange.
     pub link_timeout: Duration,
+    /// Run in lockstep (the board's tick waits for the measurement); else free-running.
+    pub lockstep: bool,
+    /// The board's drive limits and safe state for the run.
+    pub safety: SafetyParams,
 }
 
 impl HilOptions {
-    /// `samples` samples on a clean link; RMSE after the first fifth (at least the fade-in
-    /// of 500 samples); 0.5 s per configuration request, 2 s of silence ends the run.
+    /// `samples` samples on a clean link in lockstep; RMSE after the first fifth (at least
+    /// the fade-in of 500 samples); 0.5 s per configuration request, 2 s of silence ends
+    /// the run; the board's default safety parameters.
     pub fn new(samples: u32) -> Self {
         Self {
             samples,
@@ -67,6 +91,8 @@ impl HilOptions {
             settle_samples: (samples / 5).max(500).min(samples / 2),
             reply_timeout: Duration::from_millis(500),
             link_timeout: Duration::from_secs(2),
+            lockstep: true,
+            safety: SafetyParams::DEFAULT,
         }
     }
 }
@@ -110,6 +136,22 @@ pub struct SampleRecord {
     pub measurement: MeasurementFate,
 }
 
+/// How the board reached its safe state after the host fell silent.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SafeState {
+    /// The drive when the host fell silent, V.
+    pub from_v: f32,
+    /// From the host's last frame to 0 V, as the board counted it (ticks times the
+    /// period), ms.
+    pub board_ms: f64,
+    /// From the host sending its last frame to receiving the board's `Safe`, ms (link
+    /// and, in an emulator, its clock included); NaN when the board went there on its own
+    /// before the host fell silent on purpose (a run whose end the host missed).
+    pub host_ms: f64,
+    /// Ramp steps seen (telemetry frames flagged as the ramp).
+    pub ramp_steps: u32,
+}
+
 /// The result of a run.
 #[derive(Clone, Debug)]
 pub struct HilReport {
@@ -147,6 +189,12 @@ pub struct HilReport {
     pub stale_commands: u32,
     /// Rejections (`Fault`) the board sent during the run.
     pub board_faults: u32,
+    /// Whether the run was in lockstep.
+    pub lockstep: bool,
+    /// Ticks the board waited for measurements (lockstep).
+    pub lockstep_waits: u32,
+    /// The ramp to 0 V after the run (`None` if the drive was at 0 V already).
+    pub safe_state: Option<SafeState>,
     /// Inconsistencies found by the accounting (empty when all is well).
     pub problems: Vec<String>,
     /// Every sample.
@@ -269,6 +317,121 @@ fn final_status<P: Port>(
     }
 }
 
+/// The board's diagnostics (over a clean link).
+fn diagnostics<P: Port>(
+    link: &mut Link<P>,
+    opts: &HilOptions,
+) -> Result<boucwen_link::message::Diagnostics, HilError> {
+    link.request(&Message::GetDiagnostics, 3, opts.reply_timeout, |_, m| match m {
+        Message::Diagnostics(d) => Some(*d),
+        _ => None,
+    })?
+    .ok_or_else(|| HilError::NoAnswer { request: "GetDiagnostics", port: link.port_name() })
+}
+
+/// What the host saw of the board's way to its safe state: the ramp's drives and the
+/// `Safe` message (reason, ticks, period).
+#[derive(Clone, Debug, Default)]
+struct SafeSeen {
+    ramp: Vec<f32>,
+    safe: Option<(u8, u32, u32)>,
+}
+
+impl SafeSeen {
+    /// Takes what belongs to the safe state; `true` for `Safe`, the last of it.
+    fn take(&mut self, m: &Message) -> bool {
+        match *m {
+            Message::Telemetry { u, flags, .. } if flags & command_flags::SAFE_RAMP != 0 => {
+                self.ramp.push(u);
+                false
+            }
+            Message::Safe { reason, ticks, period_us } => {
+                self.safe = Some((reason, ticks, period_us));
+                true
+            }
+            _ => false,
+        }
+    }
+}
+
+/// Falls silent and watches the board take its drive from `from_v` to 0 V.
+fn watch_safe_state<P: Port>(
+    link: &mut Link<P>,
+    safety: &SafetyParams,
+    period_us: u32,
+    problems: &mut Vec<String>,
+) -> Result<(SafeSeen, f64), HilError> {
+    let silent_since = Instant::now();
+    let period_s = period_us as f64 * 1e-6;
+    let bound_ticks = safe_bound_ticks(safety, period_s, safety.u_max.abs().max(safety.u_min.abs()));
+    // Wall-clock patience: an emulator's clock may run slower than the wall's.
+    let deadline = silent_since + Duration::from_secs_f64(bound_ticks * period_s * 20.0 + 2.0);
+    let mut seen = SafeSeen::default();
+    loop {
+        let Some(r) = link.recv(deadline)? else {
+            let waited = (deadline - silent_since).as_secs_f64();
+            problems.push(format!("no Safe message within {waited:.1} s of silence"));
+            return Ok((seen, f64::NAN));
+        };
+        if let Ok(p) = r {
+            if seen.take(&p.msg) {
+                return Ok((seen, silent_since.elapsed().as_secs_f64() * 1e3));
+            }
+        }
+    }
+}
+
+/// Ticks from the host's last frame to 0 V at most: the timeout, the ramp from `from_v`
+/// at the slew, and two ticks of slack.
+fn safe_bound_ticks(safety: &SafetyParams, period_s: f64, from_v: f32) -> f64 {
+    let step_v = safety.slew_v_per_s as f64 * period_s;
+    let timeout_ticks = (safety.host_timeout_ms as f64 * 1e-3 / period_s).ceil();
+    timeout_ticks + (from_v.abs() as f64 / step_v).ceil() + 2.0
+}
+
+/// Checks the way to 0 V from `from_v`: the ramp falls monotonically to 0 V in steps of at
+/// most the slew per period, and `Safe` names the lost host and comes within
+/// [`safe_bound_ticks`] plus the `skipped` periods the board counted as missed meanwhile
+/// (its count of time includes them; in an emulator whose clock follows a loaded host's,
+/// it jumps). What is wrong goes to `problems`.
+fn check_safe_state(
+    seen: &SafeSeen,
+    from_v: f32,
+    host_ms: f64,
+    skipped: u32,
+    safety: &SafetyParams,
+    period_us: u32,
+    problems: &mut Vec<String>,
+) -> Option<SafeState> {
+    let (reason, ticks, p_us) = seen.safe?;
+    let period_s = period_us as f64 * 1e-6;
+    let step_v = safety.slew_v_per_s as f64 * period_s;
+    let mut last = from_v;
+    for &u in &seen.ramp {
+        let ok = u.abs() <= last.abs()
+            && (u == 0.0 || u.signum() == from_v.signum())
+            && ((last - u).abs() as f64) <= step_v * (1.0 + 1e-5);
+        if !ok {
+            problems.push(format!("ramp to 0 V: {last} V then {u} V (step at most {step_v} V)"));
+        }
+        last = u;
+    }
+    if reason != SafeReason::HostLost as u8 {
+        problems.push(format!("safe state for reason {reason}, not the lost host"));
+    }
+    if last != 0.0 {
+        problems.push(format!("Safe came with the drive at {last} V"));
+    }
+    let bound = safe_bound_ticks(safety, period_s, from_v) + skipped as f64;
+    if ticks as f64 > bound || p_us != period_us {
+        problems.push(format!(
+            "safe state after {ticks} ticks of {p_us} µs (at most {bound} of {period_us} µs expected, {skipped} of them missed)"
+        ));
+    }
+    let board_ms = ticks as f64 * p_us as f64 * 1e-3;
+    Some(SafeState { from_v, board_ms, host_ms, ramp_steps: seen.ramp.len() as u32 })
+}
+
 /// The host's replica of the board's controller, stepped as the board reports.
 struct Shadow {
     controller: Controller,
@@ -304,8 +467,11 @@ where
     if stopped.is_none() {
         return Err(HilError::NoAnswer { request: "Stop", port: link.port_name() });
     }
+    configure(link, &Message::SetSafety(opts.safety), "SetSafety", opts)?;
     configure(link, &Message::SetController(params.clone()), "SetController", opts)?;
-    configure(link, &Message::Start { mode: Mode::Control, samples: n }, "Start", opts)?;
+    let waits0 = diagnostics(link, opts)?.lockstep_waits;
+    let mode = if opts.lockstep { Mode::Lockstep } else { Mode::Control };
+    configure(link, &Message::Start { mode, samples: n }, "Start", opts)?;
     let stats0 = link.stats();
     let injected0 = link.fault_counts();
     if opts.fault_rate > 0.0 {
@@ -331,8 +497,13 @@ where
         Ok(y)
     };
 
+    // The board's way to 0 V if it gets there while the host still waits for the run's end.
+    let mut early = SafeSeen::default();
     while board_done.is_none() {
-        let Some(r) = link.recv(Instant::now() + opts.link_timeout)? else {
+        // After the last sample the run's end follows at once: wait briefly, then ask (a
+        // long silence would make the board declare the host lost).
+        let wait = if log.len() as u32 >= n { Duration::from_millis(100) } else { opts.link_timeout };
+        let Some(r) = link.recv(Instant::now() + wait)? else {
             break;
         };
         let Ok(packet) = r else { continue };
@@ -407,7 +578,9 @@ where
             }
             Message::Status(s) if s.state != RunState::Running as u8 => board_done = Some(s),
             Message::Fault(_) => board_faults += 1,
-            _ => {}
+            ref m => {
+                early.take(m);
+            }
         }
     }
 
@@ -419,6 +592,21 @@ where
     if board.samples_done < n {
         problems.push(format!("the board stopped after {} of {n} samples", board.samples_done));
     }
+    let diag = diagnostics(link, opts)?;
+    let lockstep_waits = diag.lockstep_waits.wrapping_sub(waits0);
+    let period_us = params.sample_period_us;
+    let safe_state = if diag.drive_v != 0.0 {
+        let (seen, host_ms) = watch_safe_state(link, &opts.safety, period_us, &mut problems)?;
+        let skipped = diagnostics(link, opts)?.missed_ticks.wrapping_sub(diag.missed_ticks);
+        check_safe_state(&seen, diag.drive_v, host_ms, skipped, &opts.safety, period_us, &mut problems)
+    } else {
+        // At 0 V already: the last command was 0 V, or the board reached it while the host
+        // waited for the run's end (checked from the ramp's first step: the host may have
+        // missed the last command; the periods skipped are the run's).
+        let from = early.ramp.first().copied().unwrap_or(last_u);
+        let skipped = diag.missed_ticks;
+        check_safe_state(&early, from, f64::NAN, skipped, &opts.safety, period_us, &mut problems)
+    };
     while (log.len() as u32) < n {
         apply(&mut log, last_u, InputSource::Held)?;
     }
@@ -494,6 +682,9 @@ where
         injected,
         stale_commands: stale,
         board_faults,
+        lockstep: opts.lockstep,
+        lockstep_waits,
+        safe_state,
         problems,
         log,
     })
@@ -555,6 +746,11 @@ pub struct HilSummary {
     pub lost_frames: u64,
     /// Tracking RMSE, µm (`null` if not finite).
     pub rmse_um: Option<f64>,
+    /// From the host's last frame to 0 V after the run, as the board counted it, ms
+    /// (`null` if the board did not get there).
+    pub safe_state_ms: Option<f64>,
+    /// Whether the run was in lockstep.
+    pub lockstep: bool,
 }
 
 /// What is wrong with a run ([`HilReport::verdict`]): every problem found, in order.
@@ -578,6 +774,8 @@ impl HilReport {
             corrupted_frames: self.corrupted_frames,
             lost_frames: self.lost_frames,
             rmse_um: self.rmse_um.is_finite().then_some(self.rmse_um),
+            safe_state_ms: self.safe_state.map(|s| s.board_ms),
+            lockstep: self.lockstep,
         }
     }
 
@@ -610,7 +808,9 @@ impl HilReport {
              damaged frames: {} sent, {} received; {} taken for intact\n\
              shadow: {} commands compared bit for bit, {} differ\n\
              tracking RMSE: {:.4} µm\n\
-             board: {} tick overruns, {} bytes overflowed, {} compute errors",
+             board: {} tick overruns, {} bytes overflowed, {} compute errors\n\
+             loop: {}\n\
+             safe state: {}",
             self.samples,
             self.samples_accounted,
             self.commands_applied,
@@ -640,6 +840,25 @@ impl HilReport {
             b.tick_overruns,
             b.rx_overflow_bytes,
             b.compute_errors,
+            if self.lockstep {
+                format!("lockstep, the board waited {} ticks for measurements", self.lockstep_waits)
+            } else {
+                "free-running (a measurement later than the next tick is missing)".into()
+            },
+            match self.safe_state {
+                Some(s) => format!(
+                    "host silent, drive {:.3} V to 0 V in {} ramp steps; {:.0} ms from the host's last frame to 0 V (board's count; {} on the host's clock to the Safe message)",
+                    s.from_v,
+                    s.ramp_steps,
+                    s.board_ms,
+                    if s.host_ms.is_nan() {
+                        "—, reached before the host fell silent".into()
+                    } else {
+                        format!("{:.0} ms", s.host_ms)
+                    }
+                ),
+                None => "not reached (the drive was at 0 V, or see the problems)".into(),
+            },
         )
     }
 }
@@ -737,22 +956,42 @@ mod tests {
         let ideal = without_link(&mut model_plant(), &params(), 3000, opts.settle_samples).unwrap();
         assert!((r.rmse_um - ideal).abs() < 1e-9, "{} vs {ideal}", r.rmse_um);
         assert!(r.rmse_um < 0.5, "{}", r.rmse_um);
+        // Then the host fell silent: 250 ms of timeout, then the ramp at 100 V/s (one step
+        // of 0.1 V per tick) from the last command.
+        let last_u = r.log.last().unwrap().u_v;
+        let s = r.safe_state.expect("the board ramped to 0 V");
+        assert_eq!(s.from_v, last_u);
+        let ramp = (last_u.abs() / 0.1).ceil() as u32;
+        assert!((ramp..=ramp + 1).contains(&s.ramp_steps), "{s:?}");
+        assert!(s.board_ms >= 250.0 && s.board_ms <= 250.0 + ramp as f64 + 2.0, "{s:?}");
         assert!(r.verdict().is_ok());
         // The JSON line's keys, which `cargo xtask hil` and CI read.
         let j = serde_json::to_value(r.json_summary()).unwrap();
         let keys: Vec<&str> = j.as_object().unwrap().keys().map(String::as_str).collect();
-        assert_eq!(keys.len(), 5);
-        for k in ["samples", "samples_accounted", "corrupted_frames", "lost_frames", "rmse_um"] {
+        assert_eq!(keys.len(), 7);
+        for k in [
+            "samples",
+            "samples_accounted",
+            "corrupted_frames",
+            "lost_frames",
+            "rmse_um",
+            "safe_state_ms",
+            "lockstep",
+        ] {
             assert!(keys.contains(&k), "{k} in {keys:?}");
         }
         assert_eq!(j["samples"], 3000);
         assert_eq!(j["rmse_um"].as_f64(), Some(r.rmse_um));
+        assert_eq!(j["safe_state_ms"].as_f64(), Some(s.board_ms));
+        assert_eq!(j["lockstep"], true);
     }
 
     #[test]
     fn faults_are_detected_and_every_sample_accounted() {
         let (a, b) = MemoryPort::pair();
-        let opts = HilOptions { fault_rate: 0.01, seed: 7, ..HilOptions::new(3000) };
+        // Free-running: the test board ticks 3 ms after its last tick if no measurement
+        // came (in lockstep every lost frame would cost 20 such ticks).
+        let opts = HilOptions { fault_rate: 0.01, seed: 7, lockstep: false, ..HilOptions::new(3000) };
         let r = run_over(a, b, opts, Duration::from_millis(3));
         assert!(r.problems.is_empty(), "{:?}", r.problems);
         assert_eq!(r.samples_accounted, 3000);

@@ -439,6 +439,12 @@ impl<P: Port> Link<P> {
         }
     }
 
+    /// Writes `bytes` as they are (no framing, no fault injection): for tests that send
+    /// damaged frames on purpose.
+    pub fn send_raw(&mut self, bytes: &[u8]) -> Result<(), TransportError> {
+        self.port.write_all(bytes).map_err(|e| self.io(e))
+    }
+
     /// Writes a lone delimiter (never damaged), so the peer drops any half-received frame
     /// and the next frame starts clean.
     pub fn flush_peer(&mut self) -> Result<(), TransportError> {
@@ -722,9 +728,14 @@ pub(crate) mod test_board {
                         }
                     }
                 }
-                if ticking && last_tick.elapsed() >= patience {
+                // Between runs the board ticks every millisecond, as the firmware does (its
+                // safe state runs on the tick).
+                let period = if ticking { patience } else { Duration::from_millis(1) };
+                if last_tick.elapsed() >= period {
                     last_tick = Instant::now();
-                    if dev.on_tick(0, &mut send) == TimerRequest::Stop {
+                    if dev.on_tick(0, &mut boucwen_link::analog::NoFrontEnd, &|| 0, &mut send)
+                        == TimerRequest::Stop
+                    {
                         ticking = false;
                     }
                 }

@@ -29,7 +29,7 @@
 
 use crate::analysis::{self, Tone};
 use crate::diagnose::{Candidate, Kind, Residual};
-use crate::fit::{self, Branch, FitError, HostModel, ModelSpec, OeOptions};
+use crate::fit::{self, Averaging, Branch, DelaySearch, FitError, HostModel, ModelSpec, OeOptions, Samples};
 use crate::terms::{Criterion, Param, Relaxation, TermModel, Terms, refine};
 
 /// Share of the samples on a plateau at the output's extreme for a saturation of the output.
@@ -181,16 +181,24 @@ pub fn refine_with(
         m.host.drift.resize(d + 1, 0.0);
     }
     let free = m.host_params();
-    refine(&m, &free, u, y, ts, &criterion(opt, split, REFINE_ITER)).map(|r| r.0)
+    refine(&m, &free, u, y, ts, &criterion(opt, split, ts, REFINE_ITER)).map(|r| r.0)
 }
 
 /// The clamp levels tried, as fractions of the drive's largest excursion from 0 V.
 pub const CLAMP_GRID: [f64; 7] = [0.6, 0.7, 0.75, 0.8, 0.85, 0.9, 0.95];
 
-/// The criterion of a fit (`opt`'s window, at most up to `split`) as a refinement criterion.
-pub fn criterion(opt: &OeOptions, split: usize, max_iter: usize) -> Criterion {
-    Criterion { skip: opt.skip, end: opt.max_samples.min(split), max_iter }
+/// The criterion of a refinement: `opt`'s samples from its start-up on, up to `split`, at
+/// most [`MAX_REFINE_S`] of them (`ts` the sample interval).
+pub fn criterion(opt: &OeOptions, split: usize, ts: f64, max_iter: usize) -> Criterion {
+    let end = match opt.samples {
+        Samples::All => split,
+        Samples::First(n) => n.min(split),
+    };
+    Criterion { skip: opt.skip, end: end.min(opt.skip + (MAX_REFINE_S / ts).round() as usize), max_iter }
 }
+
+/// Longest criterion of a refinement (s): each of its evaluations is a free run.
+pub const MAX_REFINE_S: f64 = 3.0;
 
 /// Fits `spec` to the input as `model`'s terms transform it (clamp, extra delay), keeping
 /// `model`'s own delay, from `model`'s host. Only for terms that act on the input.
@@ -204,7 +212,7 @@ pub fn fit_host(
     opt: &OeOptions,
 ) -> Result<(TermModel, f64), FitError> {
     let ui = model.terms.input(u);
-    let o = OeOptions { delay: Some(model.host.delay), ..opt.clone() };
+    let o = OeOptions { delay: DelaySearch::Fixed(model.host.delay), ..opt.clone() };
     let f = fit::fit_oe(&ui, y, ts, split, spec, std::slice::from_ref(&model.host), &o)?;
     Ok((TermModel { host: f.model, terms: model.terms.clone() }, f.rms_fit))
 }
@@ -242,7 +250,7 @@ pub fn fit_input_clamp(
         .filter_map(|(m, _)| {
             let mut free = m.host_params();
             free.extend([Param::InputClamp(0), Param::InputClamp(1)]);
-            refine(m, &free, u, y, ts, &criterion(opt, split, REFINE_ITER))
+            refine(m, &free, u, y, ts, &criterion(opt, split, ts, REFINE_ITER))
         })
         .min_by(|a, b| a.1.total_cmp(&b.1))
         .map(|r| r.0)
@@ -271,7 +279,7 @@ pub fn fit_output_clamp(
     let mut m = model.clone();
     m.terms.output_clamp = Some(range);
     let free = m.host_params();
-    refine(&m, &free, u, y, ts, &criterion(opt, split, REFINE_ITER)).map(|r| r.0)
+    refine(&m, &free, u, y, ts, &criterion(opt, split, ts, REFINE_ITER)).map(|r| r.0)
 }
 
 /// Creep states: two relaxations (started as below), their time constants kept between [`MIN_CREEP_TAU_S`] (or ten drive periods) and four
@@ -321,7 +329,7 @@ pub fn fit_creep(
                 let without = bare.simulate(u, ts).ok()?;
                 let target: Vec<f64> =
                     y.iter().zip(with.iter().zip(&without)).map(|(v, (a, b))| v - (a - b)).collect();
-                let o = OeOptions { max_samples: split, ..opt.clone() };
+                let o = OeOptions { samples: Samples::All, ..opt.clone() };
                 if let Ok((h, _)) = fit_host(&bare, &spec_of(&m.host), u, &target, ts, split, &o) {
                     let start = TermModel { host: h.host, terms: m.terms.clone() };
                     if let Some(r) = refine(&start, &free, u, y, ts, &c) {
@@ -396,7 +404,13 @@ pub fn delay_scan(
         return None;
     }
     let end = split.min(1 + (DELAY_WINDOW_S / ts).round() as usize);
-    let o = OeOptions { skip: 1, max_samples: end, fit_delay: false, delay: Some(0.0), ..opt.clone() };
+    let o = OeOptions {
+        skip: 1,
+        samples: Samples::First(end),
+        averaging: Averaging::Off,
+        delay: DelaySearch::Fixed(0.0),
+        ..opt.clone()
+    };
     let fits: Vec<(TermModel, f64)> = (0..=MAX_DELAY_SHIFT)
         .filter_map(|shift| {
             let mut m = model.clone();

@@ -18,7 +18,7 @@
 //! the actuator's response at `n·f` ([`ResponseSource`], [`probe_response_on`]) are the
 //! same for `boucwen hil` and for every frequency of the sweep ([`crate::sweep`]).
 
-use crate::fit::{self, FitError, HostModel, ModelSpec, OeOptions};
+use crate::fit::{self, Averaging, FitError, HostModel, ModelSpec, OeOptions, Samples};
 use crate::{analysis, experiment};
 use boucwen_core::compensator::{HarmonicSpec, PhaseRule, Saturation};
 use boucwen_core::controllers::{OrcConfig, PiConfig};
@@ -314,7 +314,13 @@ where
     plant.reset().map_err(|e| DesignError::plant(&*plant, e))?;
     let mut y = vec![0.0; n];
     plant.run_into(&u, &mut y).map_err(|e| DesignError::plant(&*plant, e))?;
-    let opt = OeOptions { require_invertible: true, ..OeOptions::default() };
+    // The first 4 s of the fitted half, sample by sample (the design record starts from rest).
+    let opt = OeOptions {
+        samples: Samples::First(4000),
+        averaging: Averaging::Off,
+        require_invertible: true,
+        ..OeOptions::default()
+    };
     let model =
         fit::fit_oe(&u, &y, ts, n / 2, &ModelSpec::extended(f), &[], &opt).map_err(DesignError::Fit)?.model;
     let alpha_um = experiment::eq25_amplitude(&u, &y);

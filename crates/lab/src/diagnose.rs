@@ -7,7 +7,8 @@
 //!    [`Thresholds::min_gain`], the baseline carries it ("extended+offset"): a sensor's zero
 //!    is arbitrary, and the model's loop starts from `h = 0` wherever the actuator was. An
 //!    offset is not a finding; the model's name shows it. The fit criterion skips the start-up (a fifth of the half, at most
-//!    [`MAX_SKIP_S`]) and covers at most [`MAX_WINDOW_S`].
+//!    [`MAX_SKIP_S`]) and, under a periodic drive, fits the average of the half's remaining
+//!    periods once a trend is separated ([`crate::fit::Averaging::PeriodsAndTrend`]).
 //! 2. **What it gets wrong.** The held-out residual `r = y − ŷ` is split ([`decompose`]) into
 //!    the part periodic with the drive (harmonics `k·f`, measured over whole periods), a
 //!    slow trend (a cubic in time, its mean included, fitted to what the harmonics leave),
@@ -54,7 +55,7 @@
 
 use crate::analysis::{self, Tone};
 use crate::causes;
-use crate::fit::{self, FitError, HostModel, ModelSpec, OeOptions};
+use crate::fit::{self, Averaging, FitData, FitError, HostModel, ModelSpec, OeOptions};
 use crate::record::Y_LIMIT_UM;
 use crate::steady::{self, Drive, DriveKind, NoResponse, Window, WindowError};
 use crate::terms::{TermModel, Terms};
@@ -859,9 +860,16 @@ pub fn decompose(r: &[f64], f: f64, ts: f64) -> Residual {
     // Remove the harmonics, then fit a cubic trend to what is left.
     let mut rest: Vec<f64> = r.to_vec();
     for h in &harmonics {
+        // amp·sin(wk + phase) by a rotating phasor, re-anchored every 1024 samples.
         let w = TAU * h.freq_hz * ts;
+        let (dw_s, dw_c) = w.sin_cos();
+        let (mut s, mut c) = (0.0f64, 1.0f64);
         for (k, v) in rest.iter_mut().enumerate() {
-            *v -= h.amp * (w * k as f64 + h.phase).sin();
+            if k % 1024 == 0 {
+                (s, c) = (w * k as f64 + h.phase).sin_cos();
+            }
+            *v -= h.amp * s;
+            (s, c) = (s * dw_c + c * dw_s, c * dw_c - s * dw_s);
         }
     }
     let (trend, slope) = poly_fit(&rest, ts, 3);
@@ -965,29 +973,27 @@ pub const TERM_STARTS: usize = 5;
 /// Highest harmonic order tried as a term.
 pub const MAX_TERM_ORDER: u32 = 9;
 
-/// The fit settings of the diagnosis: the baseline is the best of three Levenberg–Marquardt
-/// starts; the loop need not be invertible (the model explains a record, it is not used to
-/// compensate).
+/// The fit settings of the diagnosis: the loop need not be invertible (the model explains a
+/// record, it is not used to compensate).
 ///
 /// The criterion covers the whole first half but its first fifth (at most
 /// [`MAX_SKIP_S`]): the record starts from rest (or from wherever the actuator was), and the
 /// start-up transient of a lightly damped resonance is not what the diagnosis is about.
+/// Under a periodic drive the fit separates a trend and averages the periods of that part
+/// first ([`Averaging::PeriodsAndTrend`]), so its cost does not grow with the record; the
+/// trend is the drift term's to explain.
 pub fn fit_options(split: usize, ts: f64) -> OeOptions {
     let skip = (split / 5).min((MAX_SKIP_S / ts) as usize).max(OeOptions::default().skip);
     OeOptions {
-        max_iter: 15,
         require_invertible: false,
-        max_samples: split.min(skip + (MAX_WINDOW_S / ts) as usize),
         skip,
+        averaging: Averaging::PeriodsAndTrend,
         ..OeOptions::default()
     }
 }
 
 /// Longest start-up left out of the fit criterion (s).
 pub const MAX_SKIP_S: f64 = 1.0;
-/// Longest fit criterion window (s): enough periods of any drive the diagnosis accepts
-/// (at least 12 at 5 Hz), short enough to keep a diagnosis fast.
-pub const MAX_WINDOW_S: f64 = 2.5;
 
 /// Diagnoses a record: `u` (V), `y` (µm), sample interval `ts` (s), its first sample at
 /// `t = 0`, in its steady window.
@@ -1053,7 +1059,6 @@ pub fn plan(
     let start_rel = start - window.drive_on;
     let mut opt = OeOptions { lm_starts: TERM_STARTS, ..fit_options(split, ts) };
     opt.skip = start_rel.max(opt.skip.min(split.saturating_sub(FIT_MIN_SAMPLES)));
-    opt.max_samples = split.min(opt.skip + (MAX_WINDOW_S / ts) as usize);
     Ok(Plan { window, drive, split, periods: (p_fit, periods - p_fit), opt, t0 })
 }
 
@@ -1115,7 +1120,12 @@ fn diagnose_from(
     let opt = plan.opt.clone();
     // The baseline carries an output offset: a sensor's zero is arbitrary.
     let spec = ModelSpec { drift_degree: Some(0), ..ModelSpec::extended(drive_hz) };
-    let baseline = fit::fit_oe(u, y, ts, split, &spec, starts, &opt)?.model;
+    // The fitted half's average periods, computed once for all fits (with a trend for the
+    // drift term's).
+    let data = FitData::new(u, y, ts, split);
+    data.prepare(&spec, &opt);
+    data.prepare(&ModelSpec { drift_degree: Some(1), ..spec.clone() }, &opt);
+    let baseline = fit::fit_oe_on(&data, &spec, starts, &opt)?.model;
     let baseline_sim = baseline.simulate(u, ts)?;
     let held_out =
         |sim: &[f64]| -> Vec<f64> { y[split..].iter().zip(&sim[split..]).map(|(a, b)| a - b).collect() };
@@ -1250,7 +1260,7 @@ fn diagnose_from(
             .par_iter()
             .enumerate()
             .filter_map(|(i, c)| {
-                let m = try_term(&model, c, u, y, ts, split, &opt)?;
+                let m = try_term(&model, c, &data, u, y, ts, split, &opt)?;
                 let sim = m.simulate(u, ts).ok()?;
                 if instability(m.host.ext.ar, &sim, ts).is_some() {
                     return None;
@@ -1283,11 +1293,16 @@ fn diagnose_from(
             .filter(|(_, t)| qualifies(t) && !physical(&remaining[t.0]))
             .max_by(|a, b| remaining[a.1.0].evidence_um.total_cmp(&remaining[b.1.0].evidence_um))
             .map(|(pos, _)| pos);
+        // An output that sits on plateaus is clipped where it is measured: its clamp, when it
+        // qualifies, goes before a clamp of the drive (which the structure would smooth).
+        let plateau = |c: &Candidate| c.output_range.is_some();
         let by_rms = tried
             .iter()
             .enumerate()
             .filter(|(_, t)| qualifies(t) && physical(&remaining[t.0]))
-            .min_by(|a, b| a.1.2.total_cmp(&b.1.2))
+            .min_by(|a, b| {
+                plateau(&remaining[b.1.0]).cmp(&plateau(&remaining[a.1.0])).then(a.1.2.total_cmp(&b.1.2))
+            })
             .map(|(pos, _)| pos);
         let winner = match (by_evidence, by_rms) {
             (Some(e), Some(r)) if tried[r].2 < tried[e].2 => Some(r),
@@ -1343,7 +1358,7 @@ fn diagnose_from(
         let (i, m, rms, term) = tried.into_iter().nth(pos).expect("the winner is one of the trials");
         if round == 0 && depth < MAX_BASELINE_REFITS {
             let stripped = without(&m, &remaining[i]).host;
-            let refit = fit::fit_oe(u, y, ts, split, &spec, &[stripped], &opt).map(|f| f.model);
+            let refit = fit::fit_oe_on(&data, &spec, &[stripped], &opt).map(|f| f.model);
             if let Ok(b) = refit {
                 if fit::free_run_rms(&b, u, y, ts, split)
                     .is_ok_and(|r| r < baseline_rms_um * (1.0 - BASELINE_REFIT_GAIN))
@@ -1496,12 +1511,14 @@ fn diagnose_from(
 pub const STEP_FROM_REST: f64 = 0.05;
 
 /// Fits the candidate's term onto `model` (see [`crate::causes`]): a harmonic branch or a
-/// drift line by [`fit::fit_oe`] (on the input as the model's terms transform it), or by a
-/// joint refinement when the model has terms inside or after it; a saturation or creep by
-/// its own fit.
+/// drift line by [`fit::fit_oe_on`] (on the record prepared as `data`, or on the input as the
+/// model's terms transform it), or by a joint refinement when the model has terms inside or
+/// after it; a saturation or creep by its own fit.
+#[allow(clippy::too_many_arguments)]
 fn try_term(
     model: &TermModel,
     c: &Candidate,
+    data: &FitData<'_>,
     u: &[f64],
     y: &[f64],
     ts: f64,
@@ -1516,18 +1533,13 @@ fn try_term(
         Kind::Creep => causes::fit_creep(model, u, y, ts, split, opt),
         Kind::OddHarmonic | Kind::EvenHarmonic | Kind::Drift => {
             let spec = with_term(&model.host, c, ts)?;
-            let mut o = opt.clone();
-            if c.kind == Kind::Drift {
-                // A trend extrapolates from the longest base: the whole fitted part.
-                o.max_samples = split;
-            }
             if model.terms.is_empty() {
-                let f = fit::fit_oe(u, y, ts, split, &spec, std::slice::from_ref(&model.host), &o).ok()?;
+                let f = fit::fit_oe_on(data, &spec, std::slice::from_ref(&model.host), opt).ok()?;
                 Some(TermModel::from(f.model))
             } else if model.terms.input_only() {
-                causes::fit_host(model, &spec, u, y, ts, split, &o).ok().map(|r| r.0)
+                causes::fit_host(model, &spec, u, y, ts, split, opt).ok().map(|r| r.0)
             } else {
-                causes::refine_with(model, &spec, u, y, ts, split, &o)
+                causes::refine_with(model, &spec, u, y, ts, split, opt)
             }
         }
         Kind::OtherInput | Kind::InputDelay | Kind::OddDistortion | Kind::EvenDistortion => None,

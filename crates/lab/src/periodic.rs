@@ -33,7 +33,7 @@
 use crate::analysis;
 use crate::diagnose::{self, DiagnoseError, Finding, Kind, ModelCheck, Thresholds, instability};
 use crate::distortion::{self, BlaLine, Level, Line, Lines, Parity};
-use crate::fit::{self, ModelSpec, OeOptions};
+use crate::fit::{self, DelaySearch, LoopSearch, ModelSpec, OeOptions, Samples};
 use crate::steady::{self, Drive, DriveKind, Window};
 use crate::terms::{Param, Stiffening, TermModel, refine};
 use rayon::prelude::*;
@@ -301,12 +301,11 @@ pub fn diagnose(
     // with it (a sampled actuator answers about a sample late, which one resonance cannot
     // absorb over a band).
     let opt = OeOptions {
-        max_iter: 15,
         lm_starts: diagnose::TERM_STARTS,
         require_invertible: false,
         skip,
-        max_samples: fit_end.min(skip + window),
-        fit_delay: true,
+        samples: Samples::First(fit_end.min(skip + window)),
+        delay: DelaySearch::Fit,
         ..OeOptions::default()
     };
     let spec = ModelSpec { drift_degree: Some(0), ..ModelSpec::extended(f0) };
@@ -364,10 +363,18 @@ pub fn diagnose(
     };
 
     // The linear model, the extended model (baseline), the symmetric loop between them.
-    let linear =
-        fit::fit_oe(u0, y0, ts, fit_end, &spec, &[], &OeOptions { linear: true, ..opt.clone() })?.model;
+    let linear = fit::fit_oe(
+        u0,
+        y0,
+        ts,
+        fit_end,
+        &spec,
+        &[],
+        &OeOptions { hysteresis: LoopSearch::Linear, ..opt.clone() },
+    )?
+    .model;
     let extended = fit::fit_oe(u0, y0, ts, fit_end, &spec, &[], &opt)?.model;
-    let crit = crate::causes::criterion(&opt, fit_end, crate::causes::REFINE_ITER);
+    let crit = crate::causes::criterion(&opt, fit_end, ts, crate::causes::REFINE_ITER);
     let mut symmetric = TermModel::from(extended.clone());
     symmetric.host.ext.bw.a0 = 0.0;
     let free: Vec<Param> = symmetric.host_params().into_iter().filter(|p| *p != Param::A0).collect();

@@ -37,7 +37,10 @@
 use crate::analysis;
 use crate::design::{self, PROBE_REL, PROBE_SECONDS, ResponseSource};
 use crate::experiment::{self, CompensationSettings, ExperimentError, Peer, Trace};
-use crate::fit::{self, FitError, HostModel, ModelSpec, OeOptions};
+use crate::fit::{
+    self, Averaging, DelaySearch, FitError, HostModel, LoopSearch, LoopShape, ModelSpec, OeOptions, Samples,
+    StructureSearch,
+};
 use boucwen_core::compensator::{HarmonicSpec, PhaseRule};
 use boucwen_sim::{Bimorph, Scenario, SimError};
 use rayon::prelude::*;
@@ -103,6 +106,9 @@ pub const STRUCTURE_SECONDS: f64 = 20.0;
 /// nearly linear (the loop and the stiffening barely act).
 pub const STRUCTURE_AMPLITUDE: f64 = 0.1;
 
+/// Samples (from the record's start) of each frequency's output-error fit criterion.
+pub const SWEEP_FIT_SAMPLES: usize = 4000;
+
 /// Length of the quasi-static loop record (s) and its frequency (Hz).
 pub const LOOP_SECONDS: f64 = 6.0;
 /// Frequency of the quasi-static loop record (Hz): slow enough that the structure acts as
@@ -115,8 +121,8 @@ pub const LOOP_HZ: f64 = 1.0;
 pub struct Structure {
     /// The extended model fitted to the multisine record (its AR part is the structure).
     pub model: HostModel,
-    /// The loop shape `[A0/A, γ', β]` fitted to the quasi-static record with that structure.
-    pub shape: [f64; 3],
+    /// The loop shape fitted to the quasi-static record with that structure.
+    pub shape: LoopShape,
     /// Its fitting RMS (µm).
     pub rms_fit_um: f64,
     /// The resonance of its AR part (Hz), if the poles are complex.
@@ -133,7 +139,13 @@ pub fn identify_structure(scenario: &Scenario, drive_amplitude: f64) -> Result<S
     let u =
         experiment::multisine(STRUCTURE_AMPLITUDE * drive_amplitude, 1.0, (0.2 / ts).min(200.0), 40, ts, n);
     let y = Bimorph::new(&scenario.clone().with_seed(seed))?.run(&u)?;
-    let opt = OeOptions { max_samples: 8000, fit_delay: true, linear: true, ..OeOptions::default() };
+    let opt = OeOptions {
+        samples: Samples::First(8000),
+        averaging: Averaging::Off,
+        delay: DelaySearch::Fit,
+        hysteresis: LoopSearch::Linear,
+        ..OeOptions::default()
+    };
     let fit = fit::fit_oe(&u, &y, ts, n, &ModelSpec::extended(1.0), &[], &opt).map_err(err)?;
     let resonance_hz = crate::diagnose::resonance_hz(fit.model.ext.ar, ts);
     // The loop: a quasi-static sine at the drive amplitude, with that structure and delay.
@@ -142,10 +154,10 @@ pub fn identify_structure(scenario: &Scenario, drive_amplitude: f64) -> Result<S
         experiment::sine(drive_amplitude, LOOP_HZ, ts, n_loop).map_err(|e| SweepError::Core(LOOP_HZ, e))?;
     let y_loop = Bimorph::new(&scenario.clone().with_seed(seed.wrapping_sub(1)))?.run(&u_loop)?;
     let loop_opt = OeOptions {
-        max_samples: n_loop,
-        structure: Some(fit.model.ext.ar),
-        fix_structure: true,
-        delay: Some(fit.model.delay),
+        samples: Samples::First(n_loop),
+        averaging: Averaging::Off,
+        structure: StructureSearch::Fixed(fit.model.ext.ar),
+        delay: DelaySearch::Fixed(fit.model.delay),
         ..OeOptions::default()
     };
     let loop_fit = fit::fit_oe(&u_loop, &y_loop, ts, n_loop, &ModelSpec::extended(LOOP_HZ), &[], &loop_opt)
@@ -404,11 +416,14 @@ fn identify_at(
 ) -> Result<Identified, FitError> {
     let ts = opts.scenario.sampling.ts_s;
     let fit_end = u.len() / 2;
+    // The first 4 s of the fitted half, sample by sample: the record starts from rest and the
+    // lightly damped first mode is not in steady state after the skipped 0.2 s.
     let oe = OeOptions {
-        structure: Some(structure.model.ext.ar),
-        fix_structure: true,
-        delay: Some(structure.model.delay),
-        shape: Some(structure.shape),
+        samples: Samples::First(SWEEP_FIT_SAMPLES),
+        averaging: Averaging::Off,
+        structure: StructureSearch::Fixed(structure.model.ext.ar),
+        delay: DelaySearch::Fixed(structure.model.delay),
+        hysteresis: LoopSearch::Fixed(structure.shape),
         ..OeOptions::default()
     };
     let ext_fit = fit::fit_oe(u, y, ts, fit_end, &ModelSpec::extended(f), &[], &oe)?;

@@ -18,27 +18,40 @@
 //! |---|---|---|---|
 //! | `GetStatus` | `Status` | `Status` | `Status` |
 //! | `SetController`, `SetPlant` | validate, `Ack` or `Fault(InvalidParams)` | `Fault(Busy)` | `Fault(Busy)` |
-//! | `SetOrc` | `Fault(Unexpected)`: the link runs the compensator | `Fault(Unexpected)` | `Fault(Unexpected)` |
+//! | `SetOrc` | feature `orc`: validate, `Ack`; else `Fault(Unexpected)` | `Fault(Busy)` | `Fault(Busy)` |
+//! | `SetSafety` | validate, `Ack` or `Fault(InvalidParams)` (`Fault(Busy)` if the drive held is outside the new limits) | `Fault(Busy)` | `Fault(Busy)` |
+//! | `GetDiagnostics` | `Diagnostics` | `Diagnostics` | `Diagnostics` |
 //! | `Start{mode, n}` | `Ack`, run starts (`Fault(NotConfigured)` without parameters) | `Fault(Busy)` | `Fault(Busy)` |
 //! | `Stop` | `Status` | run ends, `Status` | run ends, `Status` |
-//! | `Measurement{k}` | counted stale | kept for the next tick if `k` is the last command's sample, else counted stale | `Fault(Unexpected)` |
-//! | `Command{k, u}` | `Fault(Unexpected)` | `Fault(Unexpected)` | plant steps (holding the last `u` over missed samples), `Measurement{k, y}`; the same command again: the same answer again |
+//! | `Measurement{k}` | counted stale | kept for the next tick if `k` is the last command's sample, else counted stale (control and lockstep runs) | `Fault(Unexpected)` |
+//! | `Command{k, u}` | `Fault(Unexpected)` | `Fault(Unexpected)` | plant steps (holding the last `u` over at most [`limits::MAX_CATCH_UP`] missed samples), `Measurement{k, y}`; the same command again: the same answer again; `k` past, too far ahead or `u` outside the drive limits: counted stale |
 //! | a bad frame | `Fault(BadFrame)` | `Fault(BadFrame)` | `Fault(BadFrame)` |
+//!
+//! Bad frames are all counted, and answered at a bounded rate ([`limits::FAULT_BURST`],
+//! then one per [`limits::FAULT_REFILL_TICKS`] ticks), so line noise cannot fill the
+//! transmit queue. Runs of mode `Simulated` and `Local` step at each tick like a control
+//! run, with the on-chip simulated actuator or the board's converters
+//! ([`super::analog::FrontEnd`]) instead of the host, and send [`Message::Telemetry`].
 //!
 //! At each tick of a control run the board takes the measurement of the previous sample if
 //! it arrived (else steps without it: the compensator holds its adaptation for that sample),
 //! steps the controller and sends `Command{k, u[k]}`; after the last sample it sends its
 //! `Status` and tells the firmware to stop the timer.
+//! A lockstep run ([`Mode::Lockstep`]) is a control run whose tick, when the previous
+//! sample's measurement has not arrived, does nothing (counted in
+//! [`Diagnostics::lockstep_waits`]) for up to [`limits::LOCKSTEP_PATIENCE_TICKS`] ticks.
 
+use super::analog::{FrontEnd, SimulatedActuator};
 use super::frame::SeqTracker;
 use super::message::{
-    ControllerParams, Fault, FaultCode, MAX_AR, MAX_HARMONICS, Message, Mode, OrcParams, PlantParams,
-    RunState, Status, command_flags, kind,
+    ControllerParams, Diagnostics, Fault, FaultCode, MAX_AR, MAX_HARMONICS, Message, Mode, OrcParams,
+    PlantParams, RunState, SafeReason, SafetyParams, Status, command_flags, kind,
 };
 use super::{Packet, WireError, encode};
 use boucwen_core::Error;
 use boucwen_core::compensator::{Compensator, CompensatorConfig, CompensatorOutput, HarmonicSpec};
 use boucwen_core::controllers::{ControlOutput, Controller as _, ORC_CAPACITY, OrcController};
+
 use boucwen_core::model::{EnhancedParams, EnhancedState, HarmonicBranch, Model};
 use boucwen_core::signal::sin_cos;
 use nalgebra::Complex;
@@ -189,6 +202,8 @@ impl OnChipPlant {
     /// Applies `u[k]` (V), returns `y[k]` (µm).
     #[inline]
     pub fn step(&mut self, u: f32) -> f32 {
+        #[cfg(test)]
+        super::fuzz::PLANT_STEPS.with(|c| c.set(c.get() + 1));
         self.model.step(&mut self.state, u)
     }
 }
@@ -284,27 +299,186 @@ impl OrcLoop {
     }
 }
 
+/// The ranges of every number the board takes from the wire. A value outside is refused
+/// (parameters: `Fault(InvalidParams)` naming it; samples: counted and not used), so no
+/// message can make the board compute for long, overflow a counter or drive a state to
+/// infinity.
+pub mod limits {
+    /// Sample period, µs: 100 µs (10 kHz) to 100 ms.
+    pub const SAMPLE_PERIOD_US: (u32, u32) = (100, 100_000);
+    /// Largest |y| taken from the host, µm (the sensor's range is far below).
+    pub const Y_MAX_UM: f32 = 1.0e5;
+    /// Largest |u| of any drive limit or saturation, V.
+    pub const U_MAX_V: f32 = 1000.0;
+    /// Largest reference amplitude, µm.
+    pub const AMPLITUDE_MAX_UM: f32 = 1.0e4;
+    /// Longest fade-in, samples.
+    pub const FADE_MAX_SAMPLES: u32 = 10_000_000;
+    /// Plant mode: most samples one command may skip (the plant steps that many with the
+    /// last input); a command further ahead is refused.
+    pub const MAX_CATCH_UP: u32 = 64;
+    /// Slew of the ramp to 0 V, V/s.
+    pub const SLEW_V_PER_S: (f32, f32) = (0.1, 1.0e5);
+    /// Host timeout, ms.
+    pub const HOST_TIMEOUT_MS: (u32, u32) = (10, 60_000);
+    /// Bad frames answered in a burst; after it, one answer per
+    /// [`FAULT_REFILL_TICKS`] ticks (the rest are counted, not answered).
+    pub const FAULT_BURST: u32 = 4;
+    /// Ticks per bad-frame answer once the burst is spent.
+    pub const FAULT_REFILL_TICKS: u32 = 10;
+    /// Lockstep run: most ticks a step waits for the previous sample's measurement before
+    /// it steps without it (20 ms at 1 kHz: a host that answers at all answers sooner, and
+    /// a lost frame costs no more than this).
+    pub const LOCKSTEP_PATIENCE_TICKS: u32 = 20;
+}
+
+/// Checks the numbers of a [`ControllerParams`] beyond what the compensator checks.
+fn check_controller(p: &ControllerParams) -> Result<(), Error> {
+    let (lo, hi) = limits::SAMPLE_PERIOD_US;
+    if !(lo..=hi).contains(&p.sample_period_us) {
+        return Err(Error::OutOfRange("sample period (100 µs to 100 ms)"));
+    }
+    if p.amplitude_um.is_nan() || p.amplitude_um.abs() > limits::AMPLITUDE_MAX_UM {
+        return Err(Error::OutOfRange("reference amplitude (at most 1e4 µm)"));
+    }
+    if p.fade_samples > limits::FADE_MAX_SAMPLES {
+        return Err(Error::OutOfRange("fade-in (at most 1e7 samples)"));
+    }
+    let s = &p.saturation;
+    if !(s.u_min.abs() <= limits::U_MAX_V && s.u_max.abs() <= limits::U_MAX_V) {
+        return Err(Error::OutOfRange("saturation (at most 1000 V)"));
+    }
+    if p.uc_max.is_nan() || p.uc_max > limits::U_MAX_V {
+        return Err(Error::OutOfRange("uc_max (at most 1000 V)"));
+    }
+    Ok(())
+}
+
+/// Checks a [`SafetyParams`].
+pub fn check_safety(p: &SafetyParams) -> Result<(), Error> {
+    if !(p.u_min <= 0.0 && p.u_min >= -limits::U_MAX_V) {
+        return Err(Error::OutOfRange("drive limit u_min (-1000 to 0 V)"));
+    }
+    if !(p.u_max >= 0.0 && p.u_max <= limits::U_MAX_V) {
+        return Err(Error::OutOfRange("drive limit u_max (0 to 1000 V)"));
+    }
+    let (lo, hi) = limits::SLEW_V_PER_S;
+    if !(p.slew_v_per_s >= lo && p.slew_v_per_s <= hi) {
+        return Err(Error::OutOfRange("slew (0.1 to 1e5 V/s)"));
+    }
+    let (lo, hi) = limits::HOST_TIMEOUT_MS;
+    if !(lo..=hi).contains(&p.host_timeout_ms) {
+        return Err(Error::OutOfRange("host timeout (10 ms to 60 s)"));
+    }
+    Ok(())
+}
+
 /// What the firmware must do with its sample timer after a message.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum TimerRequest {
     /// Leave it as it is.
     Keep,
-    /// Start ticking every `period_us` µs; the first tick is sample 0.
+    /// Tick every `period_us` µs; the next tick is sample 0 of the run.
     Start {
         /// Tick period, µs.
         period_us: u32,
     },
-    /// Stop ticking.
+    /// The run no longer needs the timer. (The firmware keeps it ticking: the safe state
+    /// runs on it.)
     Stop,
+}
+
+/// The controller of a run: the compensator, or (feature `orc`) the repetitive controller.
+#[allow(clippy::large_enum_variant)]
+#[derive(Clone, Debug)]
+enum Ctl {
+    Comp(Controller),
+    #[cfg(feature = "orc")]
+    Orc(OrcCtl),
+}
+
+#[cfg(feature = "orc")]
+#[derive(Clone, Debug)]
+struct OrcCtl {
+    reference: Reference,
+    orc: OrcController<f32, ORC_CAPACITY>,
+    k: u32,
+}
+
+/// One step of either controller: `(k, u, flags)`.
+impl Ctl {
+    fn new(p: &ControllerParams, _orc: Option<&OrcParams>) -> Result<Self, Error> {
+        check_controller(p)?;
+        #[cfg(feature = "orc")]
+        if let Some(o) = _orc {
+            let (pi, orc) = o.configs(p);
+            return Ok(Ctl::Orc(OrcCtl {
+                reference: Reference::new(p),
+                orc: OrcController::new(pi, orc)?,
+                k: 0,
+            }));
+        }
+        Ok(Ctl::Comp(Controller::new(p)?))
+    }
+
+    fn next_k(&self) -> u32 {
+        match self {
+            Ctl::Comp(c) => c.next_k(),
+            #[cfg(feature = "orc")]
+            Ctl::Orc(o) => o.k,
+        }
+    }
+
+    #[inline]
+    fn step(&mut self, y_prev: Option<f32>) -> Result<(u32, f32, u8), Error> {
+        match self {
+            Ctl::Comp(c) => {
+                let s = c.step(y_prev)?;
+                let mut flags = 0;
+                if s.out.saturated {
+                    flags |= command_flags::SATURATED;
+                }
+                if s.out.guarded {
+                    flags |= command_flags::GUARDED;
+                }
+                Ok((s.k, s.out.u, flags))
+            }
+            #[cfg(feature = "orc")]
+            Ctl::Orc(o) => {
+                let mut reference = o.reference;
+                let d = reference.next_sample();
+                let out = o.orc.step(d, y_prev)?;
+                o.reference = reference;
+                let k = o.k;
+                o.k = o.k.saturating_add(1);
+                Ok((k, out.u, if out.saturated { command_flags::SATURATED } else { 0 }))
+            }
+        }
+    }
+}
+
+/// Which actuator the drive goes to.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Front {
+    /// The host over the link (control mode).
+    Host,
+    /// The on-chip simulated actuator.
+    Simulated,
+    /// The board's converters.
+    Converters,
 }
 
 #[derive(Clone, Debug)]
 struct ControlRun {
-    controller: Controller,
+    ctl: Ctl,
     total: u32,
     /// `y[k-1]` if it arrived for the next tick.
     pending: Option<f32>,
     used: u16,
+    /// [`Mode::Lockstep`]: ticks wait for the measurement.
+    lockstep: bool,
+    /// Ticks waited so far for the pending measurement.
+    waited: u32,
 }
 
 #[derive(Clone, Debug)]
@@ -317,6 +491,14 @@ struct PlantRun {
     y_last: f32,
 }
 
+#[derive(Clone, Debug)]
+struct FrontRun {
+    ctl: Ctl,
+    total: u32,
+    /// The simulated actuator (`None`: the board's converters).
+    sim: Option<SimulatedActuator>,
+}
+
 // The firmware has no heap; the board holds one run at a time, so the size is fixed anyway.
 #[allow(clippy::large_enum_variant)]
 #[derive(Clone, Debug)]
@@ -324,20 +506,47 @@ enum Run {
     Idle,
     Control(ControlRun),
     Plant(PlantRun),
+    Front(FrontRun),
 }
 
-/// The firmware's protocol state machine. Bytes in through [`Device::on_packet`] (after
-/// the firmware's [`super::Decoder`]), ticks in through [`Device::on_tick`]; every frame to
-/// send goes to the `send` closure.
+/// The ramp of the drive to 0 V.
+#[derive(Clone, Copy, Debug)]
+struct Ramp {
+    reason: SafeReason,
+    k: u32,
+}
+
+/// The firmware's protocol state machine and control loop. Bytes in through
+/// [`Device::on_packet`] (after the firmware's [`super::Decoder`]), ticks in through
+/// [`Device::on_tick`]; every frame to send goes to the `send` closure.
+///
+/// ## Safe state
+/// The drive holds its last value between runs. It ramps to 0 V at
+/// [`SafetyParams::slew_v_per_s`] (one step per tick, telemetry flagged
+/// [`command_flags::SAFE_RAMP`], then [`Message::Safe`] with the reason and the ticks since
+/// the last intact frame) when no intact frame came for [`SafetyParams::host_timeout_ms`]
+/// while a run goes on or the drive is not 0 V, when a step computes a non-finite or
+/// out-of-range value, and when the firmware starts after a panic or a watchdog reset
+/// ([`Device::begin_safe_state`]). Runs cannot start while it ramps.
 #[derive(Clone, Debug)]
 pub struct Device {
     controller: Option<ControllerParams>,
     plant: Option<PlantParams>,
+    orc: Option<OrcParams>,
+    safety: SafetyParams,
+    converters: bool,
     run: Run,
     status: Status,
+    diag: Diagnostics,
     rx_seq: SeqTracker,
     bad_since_good: u32,
     tx_seq: u16,
+    fault_tokens: u32,
+    refill: u32,
+    period_us: u32,
+    since_frame: u32,
+    front: Front,
+    ramp: Option<Ramp>,
 }
 
 impl Default for Device {
@@ -346,23 +555,68 @@ impl Default for Device {
     }
 }
 
+/// The tick period before any run sets one, µs.
+pub const DEFAULT_PERIOD_US: u32 = 1000;
+
 impl Device {
-    /// A board just out of reset: unconfigured, idle.
+    /// A board just out of reset, without converters: unconfigured, idle, drive at 0 V.
     pub fn new() -> Self {
         Self {
             controller: None,
             plant: None,
+            orc: None,
+            safety: SafetyParams::DEFAULT,
+            converters: false,
             run: Run::Idle,
             status: Status { state: RunState::Unconfigured as u8, ..Status::default() },
+            diag: Diagnostics::default(),
             rx_seq: SeqTracker::new(),
             bad_since_good: 0,
             tx_seq: 0,
+            fault_tokens: limits::FAULT_BURST,
+            refill: 0,
+            period_us: DEFAULT_PERIOD_US,
+            since_frame: 0,
+            front: Front::Host,
+            ramp: None,
         }
+    }
+
+    /// The same board with converters: [`Mode::Local`] runs drive the `FrontEnd` given to
+    /// [`Device::on_tick`].
+    pub fn with_converters(mut self) -> Self {
+        self.converters = true;
+        self
     }
 
     /// The counters as the next [`Message::Status`] would report them.
     pub fn status(&self) -> Status {
         self.status
+    }
+
+    /// The timing and health figures; the firmware fills in what only it can measure.
+    pub fn diagnostics_mut(&mut self) -> &mut Diagnostics {
+        &mut self.diag
+    }
+
+    /// The timing and health figures.
+    pub fn diagnostics(&self) -> Diagnostics {
+        self.diag
+    }
+
+    /// The drive now, V.
+    pub fn drive_v(&self) -> f32 {
+        self.diag.drive_v
+    }
+
+    /// Whether the drive is on its way to 0 V.
+    pub fn ramping(&self) -> bool {
+        self.ramp.is_some()
+    }
+
+    /// The tick period in force, µs.
+    pub fn period_us(&self) -> u32 {
+        self.period_us
     }
 
     /// Whether a run is going on.
@@ -373,6 +627,32 @@ impl Device {
     /// Notes bytes the firmware had to drop (receive buffer full).
     pub fn note_rx_overflow(&mut self, bytes: u32) {
         self.status.rx_overflow_bytes = self.status.rx_overflow_bytes.saturating_add(bytes);
+    }
+
+    /// Notes a frame the firmware could not queue for sending.
+    pub fn note_tx_dropped(&mut self) {
+        self.diag.tx_dropped = self.diag.tx_dropped.saturating_add(1);
+    }
+
+    /// The drive limits and safe state in force.
+    pub fn safety(&self) -> SafetyParams {
+        self.safety
+    }
+
+    /// Starts the ramp to 0 V from `drive_v` (clamped to the limits; a non-finite value is
+    /// taken as 0 V) on the board's converters at `slew_v_per_s` (the default's if out of
+    /// [`limits::SLEW_V_PER_S`]): what the firmware calls at start-up after a panic or a
+    /// watchdog reset, with the drive and the slew it had saved.
+    pub fn begin_safe_state(&mut self, reason: SafeReason, drive_v: f32, slew_v_per_s: f32) {
+        let (lo, hi) = limits::SLEW_V_PER_S;
+        if slew_v_per_s >= lo && slew_v_per_s <= hi {
+            self.safety.slew_v_per_s = slew_v_per_s;
+        }
+        let v = if drive_v.is_finite() { drive_v.clamp(self.safety.u_min, self.safety.u_max) } else { 0.0 };
+        self.diag.drive_v = v;
+        self.diag.reset_cause = reason as u8;
+        self.front = if self.converters { Front::Converters } else { Front::Host };
+        self.ramp = Some(Ramp { reason, k: 0 });
     }
 
     fn send(&mut self, send: &mut impl FnMut(&[u8]), msg: &Message) {
@@ -409,6 +689,13 @@ impl Device {
         self.send(send, &s);
     }
 
+    /// Ends the run and starts the ramp to 0 V.
+    fn enter_safe_state(&mut self, reason: SafeReason) {
+        self.run = Run::Idle;
+        self.status.state = self.idle_state();
+        self.ramp = Some(Ramp { reason, k: 0 });
+    }
+
     /// Handles one decoded frame (or the error that rejected it).
     pub fn on_packet(
         &mut self,
@@ -419,26 +706,38 @@ impl Device {
             Ok(p) => p,
             Err(e) => {
                 self.status.rx_bad = self.status.rx_bad.wrapping_add(1);
+                self.diag.bad_frames = self.diag.bad_frames.wrapping_add(1);
                 self.bad_since_good = self.bad_since_good.saturating_add(1);
-                self.fault(send, FaultCode::BadFrame, 0xFFFF, e);
+                if self.fault_tokens > 0 {
+                    self.fault_tokens -= 1;
+                    self.fault(send, FaultCode::BadFrame, 0xFFFF, e);
+                } else {
+                    self.diag.faults_suppressed = self.diag.faults_suppressed.wrapping_add(1);
+                }
                 return TimerRequest::Keep;
             }
         };
+        self.since_frame = 0;
         self.status.rx_frames = self.status.rx_frames.wrapping_add(1);
         if let super::frame::SeqGap::Missed(n) = self.rx_seq.observe(seq) {
             let lost = (n as u32).saturating_sub(self.bad_since_good);
             self.status.rx_lost = self.status.rx_lost.wrapping_add(lost);
         }
         self.bad_since_good = 0;
-        let busy = self.running();
+        let busy = self.running() || self.ramping();
         match msg {
             Message::GetStatus => {
                 let s = Message::Status(self.status);
                 self.send(send, &s);
             }
-            Message::SetController(p) if !busy => match Controller::new(&p) {
+            Message::GetDiagnostics => {
+                let d = Message::Diagnostics(self.diag);
+                self.send(send, &d);
+            }
+            Message::SetController(p) if !busy => match Ctl::new(&p, None) {
                 Ok(_) => {
                     self.controller = Some(p);
+                    self.orc = None;
                     self.status.state = self.idle_state();
                     self.send(send, &Message::Ack { kind: kind::SET_CONTROLLER, seq });
                 }
@@ -452,62 +751,133 @@ impl Device {
                 }
                 Err(e) => self.fault(send, FaultCode::InvalidParams, seq, e),
             },
+            Message::SetSafety(p) if !busy => match check_safety(&p) {
+                Ok(()) if !(self.diag.drive_v >= p.u_min && self.diag.drive_v <= p.u_max) => {
+                    // The drive held between runs would be outside the new limits.
+                    self.fault(send, FaultCode::Busy, seq, "the drive held is outside the new limits")
+                }
+                Ok(()) => {
+                    self.safety = p;
+                    self.send(send, &Message::Ack { kind: kind::SET_SAFETY, seq });
+                }
+                Err(e) => self.fault(send, FaultCode::InvalidParams, seq, e),
+            },
             Message::Start { mode, samples } if !busy => return self.start(mode, samples, seq, send),
-            // The link runs the compensator; the ORC runs in the self-test (feature `orc`).
-            Message::SetOrc(_) => {
-                self.fault(send, FaultCode::Unexpected, seq, "the link runs the compensator, not the ORC")
-            }
-            Message::SetController(_) | Message::SetPlant(_) | Message::Start { .. } => {
-                self.fault(send, FaultCode::Busy, seq, "a run is going on; send Stop first")
+            Message::SetOrc(o) if !busy => self.set_orc(o, seq, send),
+            Message::SetController(_)
+            | Message::SetPlant(_)
+            | Message::SetSafety(_)
+            | Message::SetOrc(_)
+            | Message::Start { .. } => {
+                self.fault(send, FaultCode::Busy, seq, "a run or the ramp to 0 V is going on")
             }
             Message::Stop => {
-                let was_control = matches!(self.run, Run::Control(_));
+                let was_ticking = matches!(self.run, Run::Control(_) | Run::Front(_));
                 self.finish(send);
-                return if was_control { TimerRequest::Stop } else { TimerRequest::Keep };
+                return if was_ticking { TimerRequest::Stop } else { TimerRequest::Keep };
             }
             Message::Measurement { k, y } => match &mut self.run {
-                Run::Control(run) if k.wrapping_add(1) == run.controller.next_k() => run.pending = Some(y),
+                Run::Control(run)
+                    if k.wrapping_add(1) == run.ctl.next_k()
+                        && y.is_finite()
+                        && y.abs() <= limits::Y_MAX_UM =>
+                {
+                    run.pending = Some(y)
+                }
                 Run::Plant(_) => self.fault(send, FaultCode::Unexpected, seq, "measurement in a plant run"),
                 _ => self.status.measurements_stale = self.status.measurements_stale.wrapping_add(1),
             },
             Message::Command { k, u, .. } => return self.plant_command(k, u, seq, send),
-            Message::Ack { .. } | Message::Status(_) | Message::Fault(_) => {
+            Message::Ack { .. }
+            | Message::Status(_)
+            | Message::Fault(_)
+            | Message::Telemetry { .. }
+            | Message::Safe { .. }
+            | Message::Diagnostics(_) => {
                 self.fault(send, FaultCode::Unexpected, seq, "a board-to-host message sent to the board")
             }
         }
         TimerRequest::Keep
     }
 
+    #[cfg(feature = "orc")]
+    fn set_orc(&mut self, o: OrcParams, seq: u16, send: &mut impl FnMut(&[u8])) {
+        let Some(c) = &self.controller else {
+            self.fault(send, FaultCode::NotConfigured, seq, "SetOrc needs SetController first");
+            return;
+        };
+        match Ctl::new(c, Some(&o)) {
+            Ok(_) => {
+                self.orc = Some(o);
+                self.send(send, &Message::Ack { kind: kind::SET_ORC, seq });
+            }
+            Err(e) => self.fault(send, FaultCode::InvalidParams, seq, e),
+        }
+    }
+
+    #[cfg(not(feature = "orc"))]
+    fn set_orc(&mut self, _o: OrcParams, seq: u16, send: &mut impl FnMut(&[u8])) {
+        self.fault(send, FaultCode::Unexpected, seq, "the ORC is not built in (feature orc)")
+    }
+
     fn start(&mut self, mode: Mode, samples: u32, seq: u16, send: &mut impl FnMut(&[u8])) -> TimerRequest {
+        let ctl = |d: &Self| match &d.controller {
+            None => Err("no controller parameters (send SetController first)"),
+            Some(p) => Ctl::new(p, d.orc.as_ref()).map_err(|_| "controller parameters rejected"),
+        };
+        let period = self.controller.as_ref().map_or(DEFAULT_PERIOD_US, |p| p.sample_period_us);
         let run = match mode {
-            Mode::Control => match &self.controller {
-                None => Err("no controller parameters (send SetController first)"),
-                Some(p) => match Controller::new(p) {
-                    Ok(c) => Ok((
-                        Run::Control(ControlRun { controller: c, total: samples, pending: None, used: 0 }),
-                        Some(p.sample_period_us),
-                    )),
-                    Err(_) => Err("controller parameters rejected"),
-                },
-            },
+            Mode::Control | Mode::Lockstep => ctl(self).map(|ctl| {
+                let lockstep = mode == Mode::Lockstep;
+                let run = ControlRun { ctl, total: samples, pending: None, used: 0, lockstep, waited: 0 };
+                (Run::Control(run), Front::Host)
+            }),
             Mode::Plant => match &self.plant {
                 None => Err("no plant parameters (send SetPlant first)"),
                 Some(p) => match OnChipPlant::new(p) {
                     Ok(plant) => Ok((
                         Run::Plant(PlantRun { plant, total: samples, next_k: 0, u_last: 0.0, y_last: 0.0 }),
-                        None,
+                        self.front,
                     )),
                     Err(_) => Err("plant parameters rejected"),
                 },
             },
+            Mode::Simulated => match (&self.plant, ctl(self)) {
+                (None, _) => Err("no plant parameters (send SetPlant first)"),
+                (_, Err(e)) => Err(e),
+                (Some(p), Ok(ctl)) => match OnChipPlant::new(p) {
+                    Ok(plant) => Ok((
+                        Run::Front(FrontRun {
+                            ctl,
+                            total: samples,
+                            sim: Some(SimulatedActuator::new(plant)),
+                        }),
+                        Front::Simulated,
+                    )),
+                    Err(_) => Err("plant parameters rejected"),
+                },
+            },
+            Mode::Local if !self.converters => Err("this board has no converters"),
+            Mode::Local => ctl(self)
+                .map(|ctl| (Run::Front(FrontRun { ctl, total: samples, sim: None }), Front::Converters)),
         };
         match run {
             Err(what) => {
                 self.fault(send, FaultCode::NotConfigured, seq, what);
                 TimerRequest::Keep
             }
-            Ok((run, period)) => {
-                // Counters are per run; the link's own (frames) go on.
+            Ok((run, front)) => {
+                if front != self.front && self.diag.drive_v != 0.0 {
+                    // Switching actuators with the old one still driven: it would be left
+                    // where it is.
+                    self.fault(send, FaultCode::Busy, seq, "the drive is not at 0 V");
+                    return TimerRequest::Keep;
+                }
+                // Counters are per run; the link's own (frames) go on, and so do the
+                // diagnostics' except the timing of ticks and steps.
+                let d = &mut self.diag;
+                (d.ticks, d.missed_ticks, d.isr_ticks_max, d.isr_ticks_sum) = (0, 0, 0, 0);
+                (d.steps, d.step_ticks_max, d.step_ticks_sum) = (0, 0, 0);
                 self.status = Status {
                     state: RunState::Running as u8,
                     mode: mode as u8,
@@ -516,13 +886,20 @@ impl Device {
                     ..Status::default()
                 };
                 self.run = run;
+                self.front = front;
                 self.send(send, &Message::Ack { kind: kind::START, seq });
-                period.map_or(TimerRequest::Keep, |period_us| TimerRequest::Start { period_us })
+                if mode == Mode::Plant {
+                    TimerRequest::Keep
+                } else {
+                    self.period_us = period;
+                    TimerRequest::Start { period_us: period }
+                }
             }
         }
     }
 
     fn plant_command(&mut self, k: u32, u: f32, seq: u16, send: &mut impl FnMut(&[u8])) -> TimerRequest {
+        let (u_min, u_max) = (self.safety.u_min, self.safety.u_max);
         let Run::Plant(run) = &mut self.run else {
             self.fault(send, FaultCode::Unexpected, seq, "command outside a plant run");
             return TimerRequest::Keep;
@@ -533,16 +910,31 @@ impl Device {
             self.send(send, &Message::Measurement { k, y });
             return TimerRequest::Keep;
         }
-        if k < run.next_k || (run.total > 0 && k >= run.total) || !u.is_finite() {
+        // A sample already past, beyond the run, too far ahead to catch up in bounded time,
+        // the last index (no next one), or an input outside the drive limits: not taken.
+        let in_run = k >= run.next_k
+            && (run.total == 0 || k < run.total)
+            && k - run.next_k <= limits::MAX_CATCH_UP
+            && k < u32::MAX;
+        if !(in_run && u >= u_min && u <= u_max) {
             self.status.measurements_stale = self.status.measurements_stale.wrapping_add(1);
             return TimerRequest::Keep;
         }
         // Samples whose command never came: the driver holds the last input.
+        let mut y = 0.0;
         while run.next_k < k {
-            run.plant.step(run.u_last);
+            y = run.plant.step(run.u_last);
             run.next_k += 1;
         }
-        let y = run.plant.step(u);
+        if k == run.next_k {
+            y = run.plant.step(u);
+        }
+        if !(y.is_finite() && y.abs() <= limits::Y_MAX_UM) {
+            self.status.compute_errors = self.status.compute_errors.wrapping_add(1);
+            self.fault(send, FaultCode::Compute, seq, "the plant's output left its range; run ended");
+            self.finish(send);
+            return TimerRequest::Keep;
+        }
         run.u_last = u;
         run.y_last = y;
         run.next_k = k + 1;
@@ -555,24 +947,102 @@ impl Device {
         TimerRequest::Keep
     }
 
-    /// One tick of the sample timer; `missed` ticks were lost before it (the loop overran).
-    pub fn on_tick(&mut self, missed: u32, send: &mut impl FnMut(&[u8])) -> TimerRequest {
+    /// One tick of the sample timer; `missed` ticks were lost before it. `fe` is the
+    /// board's converters (used by [`Mode::Local`] runs and, after them, by the ramp to
+    /// 0 V); `clock` reads the board's free-running clock, to time the control step.
+    pub fn on_tick(
+        &mut self,
+        missed: u32,
+        fe: &mut impl FrontEnd,
+        clock: &impl Fn() -> u32,
+        send: &mut impl FnMut(&[u8]),
+    ) -> TimerRequest {
         self.status.tick_overruns = self.status.tick_overruns.wrapping_add(missed);
-        let Run::Control(run) = &mut self.run else {
+        self.diag.ticks = self.diag.ticks.wrapping_add(1);
+        self.diag.missed_ticks = self.diag.missed_ticks.wrapping_add(missed);
+        self.refill = self.refill.saturating_add(missed.saturating_add(1));
+        if self.refill >= limits::FAULT_REFILL_TICKS {
+            self.refill = 0;
+            self.fault_tokens = (self.fault_tokens + 1).min(limits::FAULT_BURST);
+        }
+        self.since_frame = self.since_frame.saturating_add(missed.saturating_add(1));
+        let timeout_ticks =
+            (self.safety.host_timeout_ms as u64 * 1000).div_ceil(self.period_us.max(1) as u64) as u32;
+        let driving = matches!(self.run, Run::Control(_) | Run::Front(_)) || self.diag.drive_v != 0.0;
+        if self.ramp.is_none() && driving && self.since_frame > timeout_ticks {
+            let was_ticking = self.running();
+            self.enter_safe_state(SafeReason::HostLost);
+            if was_ticking {
+                self.ramp_step(fe, send);
+                return TimerRequest::Keep;
+            }
+        }
+        if self.ramp.is_some() {
+            self.ramp_step(fe, send);
             return TimerRequest::Keep;
-        };
-        let k = run.controller.next_k();
-        let y_prev = run.pending.take();
-        let (step, used_now) = match run.controller.step(y_prev) {
+        }
+        match &mut self.run {
+            Run::Control(_) => self.control_tick(clock, send),
+            Run::Front(_) => self.front_tick(fe, clock, send),
+            _ => TimerRequest::Keep,
+        }
+    }
+
+    /// `u` within the drive limits, and the flag if it was clamped.
+    fn limit(&self, u: f32, flags: u8) -> (f32, u8) {
+        if u > self.safety.u_max {
+            (self.safety.u_max, flags | command_flags::LIMITED)
+        } else if u < self.safety.u_min {
+            (self.safety.u_min, flags | command_flags::LIMITED)
+        } else {
+            (u, flags)
+        }
+    }
+
+    /// Steps `ctl` with `y_prev` (retrying without it if it made the step fail); `None` if
+    /// the step failed or its output is not finite.
+    fn step_timed(
+        ctl: &mut Ctl,
+        y_prev: Option<f32>,
+        clock: &impl Fn() -> u32,
+        diag: &mut Diagnostics,
+        status: &mut Status,
+    ) -> Option<((u32, f32, u8), bool)> {
+        let t0 = clock();
+        let first = ctl.step(y_prev);
+        let t1 = clock();
+        let dt = t1.wrapping_sub(t0);
+        diag.steps = diag.steps.wrapping_add(1);
+        diag.step_ticks_sum = diag.step_ticks_sum.wrapping_add(dt as u64);
+        diag.step_ticks_max = diag.step_ticks_max.max(dt);
+        let (s, used) = match first {
             Ok(s) => (s, y_prev.is_some()),
             Err(_) => {
                 // Only a non-finite measurement fails a step; the step runs without it.
-                self.status.compute_errors = self.status.compute_errors.wrapping_add(1);
-                match run.controller.step(None) {
-                    Ok(s) => (s, false),
-                    Err(_) => return TimerRequest::Keep,
-                }
+                status.compute_errors = status.compute_errors.wrapping_add(1);
+                (ctl.step(None).ok()?, false)
             }
+        };
+        s.1.is_finite().then_some((s, used))
+    }
+
+    fn control_tick(&mut self, clock: &impl Fn() -> u32, send: &mut impl FnMut(&[u8])) -> TimerRequest {
+        let Run::Control(run) = &mut self.run else { return TimerRequest::Keep };
+        if run.lockstep
+            && run.ctl.next_k() > 0
+            && run.pending.is_none()
+            && run.waited < limits::LOCKSTEP_PATIENCE_TICKS
+        {
+            run.waited += 1;
+            self.diag.lockstep_waits = self.diag.lockstep_waits.wrapping_add(1);
+            return TimerRequest::Keep;
+        }
+        run.waited = 0;
+        let y_prev = run.pending.take();
+        let Some(((k, u, flags), used_now)) =
+            Self::step_timed(&mut run.ctl, y_prev, clock, &mut self.diag, &mut self.status)
+        else {
+            return self.compute_fault(send);
         };
         if k > 0 {
             if used_now {
@@ -582,21 +1052,111 @@ impl Device {
             }
         }
         run.used = (run.used << 1) | used_now as u16;
-        let mut flags = 0;
-        if step.out.saturated {
-            flags |= command_flags::SATURATED;
-        }
-        if step.out.guarded {
-            flags |= command_flags::GUARDED;
-        }
-        let msg = Message::Command { k, u: step.out.u, used: run.used, flags };
-        let done = run.total > 0 && k + 1 >= run.total;
-        self.status.samples_done = k + 1;
+        let (used, total) = (run.used, run.total);
+        let (u, flags) = self.limit(u, flags);
+        self.diag.drive_v = u;
+        let msg = Message::Command { k, u, used, flags };
+        let done = total > 0 && k.saturating_add(1) >= total;
+        self.status.samples_done = k.saturating_add(1);
         self.send(send, &msg);
         if done {
             self.finish(send);
             return TimerRequest::Stop;
         }
         TimerRequest::Keep
+    }
+
+    fn front_tick(
+        &mut self,
+        fe: &mut impl FrontEnd,
+        clock: &impl Fn() -> u32,
+        send: &mut impl FnMut(&[u8]),
+    ) -> TimerRequest {
+        let Run::Front(run) = &mut self.run else { return TimerRequest::Keep };
+        let k_now = run.ctl.next_k();
+        let y_prev = match &mut run.sim {
+            Some(sim) => sim.sense(),
+            None => fe.sense(),
+        }
+        .filter(|y| y.is_finite() && y.abs() <= limits::Y_MAX_UM);
+        let Some(((k, u, flags), used_now)) =
+            Self::step_timed(&mut run.ctl, y_prev, clock, &mut self.diag, &mut self.status)
+        else {
+            return self.compute_fault(send);
+        };
+        if k_now > 0 {
+            if used_now {
+                self.status.measurements_used = self.status.measurements_used.wrapping_add(1);
+            } else {
+                self.status.measurements_missing = self.status.measurements_missing.wrapping_add(1);
+            }
+        }
+        let (u_min, u_max) = (self.safety.u_min, self.safety.u_max);
+        let (u, mut flags) = if u > u_max {
+            (u_max, flags | command_flags::LIMITED)
+        } else if u < u_min {
+            (u_min, flags | command_flags::LIMITED)
+        } else {
+            (u, flags)
+        };
+        if !used_now {
+            flags |= command_flags::Y_MISSING;
+        }
+        let Run::Front(run) = &mut self.run else { return TimerRequest::Keep };
+        let applied = match &mut run.sim {
+            Some(sim) => sim.drive(u),
+            None => fe.drive(u),
+        };
+        let total = run.total;
+        self.diag.drive_v = applied;
+        let y = y_prev.unwrap_or(f32::NAN);
+        self.send(send, &Message::Telemetry { k, u: applied, y, flags });
+        self.status.samples_done = k.saturating_add(1);
+        if total > 0 && k.saturating_add(1) >= total {
+            self.finish(send);
+            return TimerRequest::Stop;
+        }
+        TimerRequest::Keep
+    }
+
+    fn compute_fault(&mut self, send: &mut impl FnMut(&[u8])) -> TimerRequest {
+        self.status.compute_errors = self.status.compute_errors.wrapping_add(1);
+        self.fault(send, FaultCode::Compute, 0xFFFF, "the control step failed; drive to 0 V");
+        self.enter_safe_state(SafeReason::Fault);
+        let s = Message::Status(self.status);
+        self.send(send, &s);
+        TimerRequest::Keep
+    }
+
+    /// One step of the ramp to 0 V.
+    fn ramp_step(&mut self, fe: &mut impl FrontEnd, send: &mut impl FnMut(&[u8])) {
+        let Some(mut ramp) = self.ramp else { return };
+        let step = self.safety.slew_v_per_s * self.period_us as f32 * 1e-6;
+        let v = self.diag.drive_v;
+        let next = if v > step {
+            v - step
+        } else if v < -step {
+            v + step
+        } else {
+            0.0
+        };
+        let applied = if self.front == Front::Converters { fe.drive(next) } else { next };
+        self.diag.drive_v = applied;
+        let k = ramp.k;
+        ramp.k = ramp.k.saturating_add(1);
+        self.send(send, &Message::Telemetry { k, u: applied, y: f32::NAN, flags: command_flags::SAFE_RAMP });
+        if applied == 0.0 {
+            self.ramp = None;
+            self.diag.safe_reason = ramp.reason as u8;
+            self.diag.safe_ticks = self.since_frame;
+            let msg = Message::Safe {
+                reason: ramp.reason as u8,
+                ticks: self.since_frame,
+                period_us: self.period_us,
+            };
+            self.send(send, &msg);
+        } else {
+            self.ramp = Some(ramp);
+        }
     }
 }

@@ -10,15 +10,21 @@
 //! | `0x06` | [`Message::Measurement`] | either | k u32, y f32 (µm) |
 //! | `0x07` | [`Message::Command`] | either | k u32, u f32 (V), used u16, flags u8 |
 //! | `0x08` | [`Message::SetOrc`] | host → board | [`OrcParams`], 27 |
+//! | `0x09` | [`Message::SetSafety`] | host → board | [`SafetyParams`], 16 |
+//! | `0x0A` | [`Message::GetDiagnostics`] | host → board | 0 |
 //! | `0x10` | [`Message::Ack`] | board → host | kind u8, seq u16 |
 //! | `0x11` | [`Message::Status`] | board → host | [`Status`], 50 |
 //! | `0x12` | [`Message::Fault`] | board → host | code u8, seq u16, text (≤ 48 bytes UTF-8) |
+//! | `0x13` | [`Message::Telemetry`] | board → host | k u32, u f32 (V), y f32 (µm), flags u8 |
+//! | `0x14` | [`Message::Safe`] | board → host | reason u8, ticks u32, period_us u32 |
+//! | `0x15` | [`Message::Diagnostics`] | board → host | [`Diagnostics`], 78 |
 //!
 //! Every multi-byte field is little-endian; `f32` is its IEEE 754 bit pattern (so values
 //! cross the link bit for bit); `u64` phase increments are the core's
 //! [`Oscillator`] units (2⁻⁶⁴ turn per sample). A payload must have exactly its layout's
-//! length; enumerations and counts are range-checked; floats are taken as they come (the
-//! compensator's own validation rejects non-finite parameters with the parameter's name).
+//! length; enumerations and counts are range-checked here; the ranges of the numbers are
+//! the board's to check ([`super::device::limits`]), so a decoded message can still hold a
+//! value the board refuses.
 
 use super::WireError;
 use super::frame::MAX_PAYLOAD;
@@ -220,6 +226,38 @@ pub enum Mode {
     /// The board is the plant (its on-chip model stands for actuator and sensor): every
     /// [`Message::Command`] from the host is answered with a [`Message::Measurement`].
     Plant = 2,
+    /// The board is the controller and its actuator is the on-chip simulated one (the
+    /// [`PlantParams`] model, the emulator's stand-in for the converters): every tick it
+    /// reads the simulated sensor, steps, drives the simulation and sends
+    /// [`Message::Telemetry`]. The self-test.
+    Simulated = 3,
+    /// The board is the controller of its own converters (ADC and DAC): every tick it
+    /// reads the sensor, steps, writes the drive and sends [`Message::Telemetry`]. Boards
+    /// without converters refuse it.
+    Local = 4,
+    /// A [`Mode::Control`] run in lockstep with its host: a tick whose step would run
+    /// without the previous sample's measurement waits for it, at most
+    /// [`super::device::limits::LOCKSTEP_PATIENCE_TICKS`] ticks, then steps without it as
+    /// a control run does at once. For hardware in the loop with a simulated actuator on a
+    /// host that is not real-time (or a board in an emulator whose clock follows the
+    /// host's): the plant's time is the sample index, not the wall clock, so a late answer
+    /// costs time, not a measurement. The cadence of the commands is then the host's; the
+    /// board's own timing is what `Simulated` and `Local` runs measure.
+    Lockstep = 5,
+}
+
+impl Mode {
+    /// The mode of its number.
+    pub fn from_u8(v: u8) -> Option<Self> {
+        match v {
+            1 => Some(Mode::Control),
+            2 => Some(Mode::Plant),
+            3 => Some(Mode::Simulated),
+            4 => Some(Mode::Local),
+            5 => Some(Mode::Lockstep),
+            _ => None,
+        }
+    }
 }
 
 /// The board's state in a [`Status`].
@@ -277,8 +315,11 @@ pub enum FaultCode {
     NotConfigured = 3,
     /// The parameters were rejected (text: which one and why).
     InvalidParams = 4,
-    /// A run is going on; stop it first.
+    /// A run is going on (or the drive is ramping to 0 V); stop it first.
     Busy = 5,
+    /// A computed value was not finite or out of its range (the run ended, the drive
+    /// ramps to 0 V).
+    Compute = 6,
 }
 
 /// A refusal, naming the frame that caused it.
@@ -320,6 +361,107 @@ pub mod command_flags {
     pub const SATURATED: u8 = 1;
     /// The inverse's denominator guard acted.
     pub const GUARDED: u8 = 2;
+    /// The drive is ramping to 0 V (safe state), not following the controller.
+    pub const SAFE_RAMP: u8 = 4;
+    /// The step ran without a measurement (none arrived, or the sensor had none).
+    pub const Y_MISSING: u8 = 8;
+    /// `u` was clamped to the board's drive limits ([`super::SafetyParams`]).
+    pub const LIMITED: u8 = 16;
+}
+
+/// The board's drive limits and safe state, set by [`Message::SetSafety`]; the board
+/// starts with [`SafetyParams::DEFAULT`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SafetyParams {
+    /// Lowest drive, V (≤ 0).
+    pub u_min: f32,
+    /// Highest drive, V (≥ 0).
+    pub u_max: f32,
+    /// Fastest change of the drive on the way to 0 V, V/s.
+    pub slew_v_per_s: f32,
+    /// No intact frame for this long while a run goes on or the drive is not 0 V: the host
+    /// is lost, the run ends and the drive ramps to 0 V, ms.
+    pub host_timeout_ms: u32,
+}
+
+impl SafetyParams {
+    /// ±10 V, 100 V/s (10 V to 0 in 0.1 s), host lost after 250 ms.
+    pub const DEFAULT: Self = Self { u_min: -10.0, u_max: 10.0, slew_v_per_s: 100.0, host_timeout_ms: 250 };
+}
+
+/// Why the drive went to its safe state.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum SafeReason {
+    /// No intact frame from the host for [`SafetyParams::host_timeout_ms`].
+    HostLost = 1,
+    /// A computed value was not finite or out of range.
+    Fault = 2,
+    /// The firmware panicked (reported after the reset that follows).
+    Panic = 3,
+    /// The independent watchdog reset the chip.
+    Watchdog = 4,
+}
+
+impl SafeReason {
+    /// The reason of its number.
+    pub fn from_u8(v: u8) -> Option<Self> {
+        match v {
+            1 => Some(SafeReason::HostLost),
+            2 => Some(SafeReason::Fault),
+            3 => Some(SafeReason::Panic),
+            4 => Some(SafeReason::Watchdog),
+            _ => None,
+        }
+    }
+}
+
+/// The board's timing and health figures ([`Message::Diagnostics`]). Durations are in
+/// ticks of the board's free-running clock; `calib_insns` instructions of a spin loop took
+/// `calib_ticks` of them (under QEMU's `-icount shift=0` that converts ticks to
+/// instructions; on a chip, to cycles of the loop).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Diagnostics {
+    /// Sample-timer interrupts handled since the last [`Message::Start`] (or reset): this
+    /// and the timing fields up to `step_ticks_sum` are per run; the others since reset.
+    pub ticks: u32,
+    /// Sample-timer periods that passed without their interrupt (the handler started more
+    /// than 1.5 periods after the previous one).
+    pub missed_ticks: u32,
+    /// Longest sample-timer interrupt of a tick that found a run going on, clock ticks.
+    pub isr_ticks_max: u32,
+    /// Sum over those interrupts, clock ticks (a `Simulated` or `Local` run steps at every
+    /// one of them: divide by [`Diagnostics::steps`]).
+    pub isr_ticks_sum: u64,
+    /// Control steps timed.
+    pub steps: u32,
+    /// Longest control step (reference, compensator), clock ticks.
+    pub step_ticks_max: u32,
+    /// Sum over the steps, clock ticks.
+    pub step_ticks_sum: u64,
+    /// Clock ticks of two back-to-back clock reads (subtracted by the host per interval).
+    pub clock_overhead_ticks: u32,
+    /// Instructions of the calibration loop.
+    pub calib_insns: u32,
+    /// Clock ticks it took.
+    pub calib_ticks: u32,
+    /// Deepest stack seen, bytes.
+    pub stack_peak_bytes: u32,
+    /// What caused the last reset: 0 power-on or pin, [`SafeReason`] as its number otherwise.
+    pub reset_cause: u8,
+    /// Bad frames received (the same as [`Status::rx_bad`] but never reset by a run).
+    pub bad_frames: u32,
+    /// Bad frames not answered (the answers are rate-limited).
+    pub faults_suppressed: u32,
+    /// Frames not sent because the transmit queue was full.
+    pub tx_dropped: u32,
+    /// The last safe state's reason (0: none yet).
+    pub safe_reason: u8,
+    /// Ticks from the last intact frame to 0 V in that safe state.
+    pub safe_ticks: u32,
+    /// The drive now, V.
+    pub drive_v: f32,
+    /// Ticks a [`Mode::Lockstep`] run waited for a measurement, since reset.
+    pub lockstep_waits: u32,
 }
 
 /// One message of the protocol.
@@ -334,6 +476,11 @@ pub enum Message {
     /// Configures the odd-harmonic repetitive controller (a board built with the `orc`
     /// feature; others answer with a [`Message::Fault`]).
     SetOrc(OrcParams),
+    /// Sets the drive limits and the safe state (answered by [`Message::Ack`] or
+    /// [`Message::Fault`]).
+    SetSafety(SafetyParams),
+    /// Asks for a [`Message::Diagnostics`].
+    GetDiagnostics,
     /// Starts a run of `samples` samples (0: until [`Message::Stop`]).
     Start {
         /// What the board does in the run.
@@ -374,6 +521,28 @@ pub enum Message {
     Status(Status),
     /// A refusal.
     Fault(Fault),
+    /// One sample of a run on the board's own actuator, or of the ramp to 0 V.
+    Telemetry {
+        /// Sample index (ticks since the run or the ramp began).
+        k: u32,
+        /// The drive `u[k]`, V.
+        u: f32,
+        /// The measurement the step used, `y[k-1]`, µm (NaN: none).
+        y: f32,
+        /// [`command_flags`].
+        flags: u8,
+    },
+    /// The drive reached 0 V in its safe state.
+    Safe {
+        /// [`SafeReason`] as its number.
+        reason: u8,
+        /// Ticks from the last intact frame received to 0 V.
+        ticks: u32,
+        /// The tick period, µs.
+        period_us: u32,
+    },
+    /// The board's timing and health figures.
+    Diagnostics(Diagnostics),
 }
 
 /// Message kinds (the byte after the sequence number).
@@ -394,12 +563,22 @@ pub mod kind {
     pub const COMMAND: u8 = 0x07;
     /// [`super::Message::SetOrc`]
     pub const SET_ORC: u8 = 0x08;
+    /// [`super::Message::SetSafety`]
+    pub const SET_SAFETY: u8 = 0x09;
+    /// [`super::Message::GetDiagnostics`]
+    pub const GET_DIAGNOSTICS: u8 = 0x0A;
     /// [`super::Message::Ack`]
     pub const ACK: u8 = 0x10;
     /// [`super::Message::Status`]
     pub const STATUS: u8 = 0x11;
     /// [`super::Message::Fault`]
     pub const FAULT: u8 = 0x12;
+    /// [`super::Message::Telemetry`]
+    pub const TELEMETRY: u8 = 0x13;
+    /// [`super::Message::Safe`]
+    pub const SAFE: u8 = 0x14;
+    /// [`super::Message::Diagnostics`]
+    pub const DIAGNOSTICS: u8 = 0x15;
 }
 
 /// Payload lengths of the fixed layouts.
@@ -407,6 +586,8 @@ const CONTROLLER_LEN: usize = 5 * 4 + MAX_AR * 4 + 8 + 4 + 4 + 4 + 1 + MAX_HARMO
 const PLANT_LEN: usize = 5 * 4 + MAX_AR * 4 + 8 + 1 + MAX_HARMONICS * 9;
 const STATUS_LEN: usize = 2 + 12 * 4;
 const ORC_LEN: usize = 5 * 4 + 2 + 4 + 1;
+const SAFETY_LEN: usize = 4 * 4;
+const DIAGNOSTICS_LEN: usize = 15 * 4 + 2 * 8 + 2;
 const _: () = assert!(CONTROLLER_LEN <= MAX_PAYLOAD && PLANT_LEN <= MAX_PAYLOAD);
 const _: () = assert!(4 + MAX_TEXT <= MAX_PAYLOAD);
 
@@ -649,6 +830,54 @@ impl Status {
     }
 }
 
+impl Diagnostics {
+    fn write(&self, w: &mut Writer<'_>) -> Result<(), WireError> {
+        for v in [self.ticks, self.missed_ticks, self.isr_ticks_max] {
+            w.u32(v)?;
+        }
+        w.u64(self.isr_ticks_sum)?;
+        for v in [self.steps, self.step_ticks_max] {
+            w.u32(v)?;
+        }
+        w.u64(self.step_ticks_sum)?;
+        for v in [self.clock_overhead_ticks, self.calib_insns, self.calib_ticks, self.stack_peak_bytes] {
+            w.u32(v)?;
+        }
+        w.u8(self.reset_cause)?;
+        for v in [self.bad_frames, self.faults_suppressed, self.tx_dropped] {
+            w.u32(v)?;
+        }
+        w.u8(self.safe_reason)?;
+        w.u32(self.safe_ticks)?;
+        w.f32(self.drive_v)?;
+        w.u32(self.lockstep_waits)
+    }
+
+    fn read(r: &mut Reader<'_>) -> Result<Self, WireError> {
+        Ok(Self {
+            ticks: r.u32()?,
+            missed_ticks: r.u32()?,
+            isr_ticks_max: r.u32()?,
+            isr_ticks_sum: r.u64()?,
+            steps: r.u32()?,
+            step_ticks_max: r.u32()?,
+            step_ticks_sum: r.u64()?,
+            clock_overhead_ticks: r.u32()?,
+            calib_insns: r.u32()?,
+            calib_ticks: r.u32()?,
+            stack_peak_bytes: r.u32()?,
+            reset_cause: r.u8()?,
+            bad_frames: r.u32()?,
+            faults_suppressed: r.u32()?,
+            tx_dropped: r.u32()?,
+            safe_reason: r.u8()?,
+            safe_ticks: r.u32()?,
+            drive_v: r.f32()?,
+            lockstep_waits: r.u32()?,
+        })
+    }
+}
+
 impl Message {
     /// The kind byte of this message.
     pub fn kind(&self) -> u8 {
@@ -661,6 +890,11 @@ impl Message {
             Message::Stop => kind::STOP,
             Message::Measurement { .. } => kind::MEASUREMENT,
             Message::Command { .. } => kind::COMMAND,
+            Message::SetSafety(_) => kind::SET_SAFETY,
+            Message::GetDiagnostics => kind::GET_DIAGNOSTICS,
+            Message::Telemetry { .. } => kind::TELEMETRY,
+            Message::Safe { .. } => kind::SAFE,
+            Message::Diagnostics(_) => kind::DIAGNOSTICS,
             Message::Ack { .. } => kind::ACK,
             Message::Status(_) => kind::STATUS,
             Message::Fault(_) => kind::FAULT,
@@ -671,7 +905,25 @@ impl Message {
     pub fn encode_payload(&self, out: &mut [u8; MAX_PAYLOAD]) -> Result<usize, WireError> {
         let mut w = Writer { buf: out, at: 0 };
         match self {
-            Message::GetStatus | Message::Stop => {}
+            Message::GetStatus | Message::Stop | Message::GetDiagnostics => {}
+            Message::SetSafety(p) => {
+                for v in [p.u_min, p.u_max, p.slew_v_per_s] {
+                    w.f32(v)?;
+                }
+                w.u32(p.host_timeout_ms)?;
+            }
+            Message::Telemetry { k, u, y, flags } => {
+                w.u32(*k)?;
+                w.f32(*u)?;
+                w.f32(*y)?;
+                w.u8(*flags)?;
+            }
+            Message::Safe { reason, ticks, period_us } => {
+                w.u8(*reason)?;
+                w.u32(*ticks)?;
+                w.u32(*period_us)?;
+            }
+            Message::Diagnostics(d) => d.write(&mut w)?,
             Message::SetController(p) => p.write(&mut w)?,
             Message::SetPlant(p) => p.write(&mut w)?,
             Message::SetOrc(p) => p.write(&mut w)?,
@@ -716,15 +968,21 @@ impl Message {
         let mut r = Reader { buf: payload, at: 0 };
         let msg = match kind {
             kind::GET_STATUS => Message::GetStatus,
+            kind::GET_DIAGNOSTICS => Message::GetDiagnostics,
+            kind::SET_SAFETY => Message::SetSafety(SafetyParams {
+                u_min: r.f32()?,
+                u_max: r.f32()?,
+                slew_v_per_s: r.f32()?,
+                host_timeout_ms: r.u32()?,
+            }),
+            kind::TELEMETRY => Message::Telemetry { k: r.u32()?, u: r.f32()?, y: r.f32()?, flags: r.u8()? },
+            kind::SAFE => Message::Safe { reason: r.u8()?, ticks: r.u32()?, period_us: r.u32()? },
+            kind::DIAGNOSTICS => Message::Diagnostics(Diagnostics::read(&mut r)?),
             kind::SET_CONTROLLER => Message::SetController(ControllerParams::read(&mut r)?),
             kind::SET_PLANT => Message::SetPlant(PlantParams::read(&mut r)?),
             kind::SET_ORC => Message::SetOrc(OrcParams::read(&mut r)?),
             kind::START => {
-                let mode = match r.u8()? {
-                    1 => Mode::Control,
-                    2 => Mode::Plant,
-                    _ => return Err(WireError::BadValue("start mode")),
-                };
+                let mode = Mode::from_u8(r.u8()?).ok_or(WireError::BadValue("start mode"))?;
                 Message::Start { mode, samples: r.u32()? }
             }
             kind::STOP => Message::Stop,
@@ -739,6 +997,7 @@ impl Message {
                     3 => FaultCode::NotConfigured,
                     4 => FaultCode::InvalidParams,
                     5 => FaultCode::Busy,
+                    6 => FaultCode::Compute,
                     _ => return Err(WireError::BadValue("fault code")),
                 };
                 let seq = r.u16()?;
@@ -760,3 +1019,4 @@ impl Message {
 }
 
 const _: () = assert!(CONTROLLER_LEN == 95 && PLANT_LEN == 59 && STATUS_LEN == 50 && ORC_LEN == 27);
+const _: () = assert!(SAFETY_LEN == 16 && DIAGNOSTICS_LEN == 78 && DIAGNOSTICS_LEN <= MAX_PAYLOAD);

@@ -1,7 +1,8 @@
 //! Protocol tests: every message round-trips, arbitrary and corrupted byte streams never
 //! panic and never yield a wrong packet, and the board's state machine follows its table.
 
-use super::device::{ClosedLoop, Controller, Device, OnChipPlant, Reference, TimerRequest};
+use super::analog::NoFrontEnd;
+use super::device::{ClosedLoop, Controller, Device, OnChipPlant, Reference, TimerRequest, limits};
 use super::frame::{MAX_ENCODED, MAX_PAYLOAD};
 use super::message::*;
 use super::*;
@@ -107,6 +108,35 @@ fn every_message() -> Vec<Message> {
         }),
         Message::Fault(Fault { code: FaultCode::InvalidParams, seq: 12, text }),
         Message::Fault(Fault::new(FaultCode::BadFrame, 0xFFFF, "ü".repeat(40))),
+        Message::Fault(Fault::new(FaultCode::Compute, 3, "x")),
+        Message::Start { mode: Mode::Simulated, samples: 2000 },
+        Message::Start { mode: Mode::Local, samples: 0 },
+        Message::Start { mode: Mode::Lockstep, samples: 7 },
+        Message::SetSafety(SafetyParams::DEFAULT),
+        Message::GetDiagnostics,
+        Message::Telemetry { k: 9, u: -1.5, y: f32::NAN, flags: command_flags::SAFE_RAMP },
+        Message::Safe { reason: SafeReason::HostLost as u8, ticks: 351, period_us: 1000 },
+        Message::Diagnostics(Diagnostics {
+            ticks: 1,
+            missed_ticks: 2,
+            isr_ticks_max: 3,
+            isr_ticks_sum: u64::MAX,
+            steps: 5,
+            step_ticks_max: 6,
+            step_ticks_sum: 7,
+            clock_overhead_ticks: 8,
+            calib_insns: 9,
+            calib_ticks: 10,
+            stack_peak_bytes: 11,
+            reset_cause: 4,
+            bad_frames: 12,
+            faults_suppressed: 13,
+            tx_dropped: 14,
+            safe_reason: 1,
+            safe_ticks: 15,
+            drive_v: -0.25,
+            lockstep_waits: 9,
+        }),
     ]
 }
 
@@ -130,13 +160,16 @@ fn every_message_roundtrips_bit_for_bit() {
     for (i, (g, m)) in got.iter().zip(&msgs).enumerate() {
         assert_eq!(g.seq, i as u16 * 1000);
         assert!(same(&g.msg, m), "{m:?} came back as {:?}", g.msg);
-        if !matches!(m, Message::Measurement { y, .. } if y.is_nan()) {
+        if !matches!(m, Message::Measurement { y, .. } | Message::Telemetry { y, .. } if y.is_nan()) {
             assert_eq!(&g.msg, m);
         }
     }
     // The long fault text was cut on a character boundary.
-    let Message::Fault(f) = &msgs[msgs.len() - 1] else { unreachable!() };
-    assert_eq!(f.text.len(), 48);
+    let long = msgs.iter().find_map(|m| match m {
+        Message::Fault(f) if f.code == FaultCode::BadFrame => Some(f),
+        _ => None,
+    });
+    assert_eq!(long.map(|f| f.text.len()), Some(48));
 }
 
 #[test]
@@ -156,7 +189,7 @@ fn layouts_are_checked_on_decode() {
     assert_eq!(Message::decode(kind::MEASUREMENT, &[0; 7]), Err(WireError::BadLength));
     assert_eq!(Message::decode(kind::MEASUREMENT, &[0; 9]), Err(WireError::BadLength));
     assert_eq!(Message::decode(0x7F, &[]), Err(WireError::UnknownKind(0x7F)));
-    assert_eq!(Message::decode(kind::START, &[3, 0, 0, 0, 0]), Err(WireError::BadValue("start mode")));
+    assert_eq!(Message::decode(kind::START, &[6, 0, 0, 0, 0]), Err(WireError::BadValue("start mode")));
     assert_eq!(Message::decode(kind::FAULT, &[9, 0, 0, 0]), Err(WireError::BadValue("fault code")));
     assert_eq!(Message::decode(kind::FAULT, &[1, 0, 0, 2, 0xC3]), Err(WireError::BadLength));
     assert_eq!(
@@ -316,7 +349,7 @@ impl Bench {
         self.dev.on_packet(Ok(Packet { seq, msg }), &mut Self::sink(&mut self.out))
     }
     fn tick(&mut self) -> TimerRequest {
-        self.dev.on_tick(0, &mut Self::sink(&mut self.out))
+        self.dev.on_tick(0, &mut NoFrontEnd, &|| 0, &mut Self::sink(&mut self.out))
     }
     fn take(&mut self) -> Vec<Message> {
         self.out.drain(..).map(|p| p.msg).collect()
@@ -419,6 +452,62 @@ fn control_run_matches_the_controller_and_reports_measurement_use() {
 }
 
 #[test]
+fn lockstep_run_waits_for_each_measurement_within_its_patience() {
+    let p = controller_params(&[(3, 2.0, -1.0)]);
+    let mut b = Bench::new();
+    b.send(Message::SetController(p.clone()));
+    assert_eq!(
+        b.send(Message::Start { mode: Mode::Lockstep, samples: 4 }),
+        TimerRequest::Start { period_us: 1000 }
+    );
+    b.take();
+    let mut reference = Controller::new(&p).unwrap();
+    let command = |msgs: &[Message]| match msgs.first() {
+        Some(Message::Command { k, u, used, .. }) => (*k, u.to_bits(), *used),
+        other => panic!("{other:?}"),
+    };
+    // Sample 0 needs no measurement: it steps at the first tick.
+    b.tick();
+    let want = reference.step(None).unwrap();
+    assert_eq!(command(&b.take()), (0, want.out.u.to_bits(), 0));
+    // y[0] comes three ticks late: the board waits (sends nothing), then steps with it.
+    for _ in 0..3 {
+        b.tick();
+        assert!(b.take().is_empty());
+    }
+    b.send(Message::Measurement { k: 0, y: 1.25 });
+    b.tick();
+    let want = reference.step(Some(1.25)).unwrap();
+    assert_eq!(command(&b.take()), (1, want.out.u.to_bits(), 0b1));
+    // y[1] never comes: after the patience the board steps without it.
+    for _ in 0..limits::LOCKSTEP_PATIENCE_TICKS {
+        b.tick();
+        assert!(b.take().is_empty());
+    }
+    b.tick();
+    let want = reference.step(None).unwrap();
+    assert_eq!(command(&b.take()), (2, want.out.u.to_bits(), 0b10));
+    // A stale measurement (for sample 1) does not release the wait for y[2].
+    b.send(Message::Measurement { k: 1, y: 3.0 });
+    b.tick();
+    assert!(b.take().is_empty());
+    b.send(Message::Measurement { k: 2, y: 2.5 });
+    assert_eq!(b.tick(), TimerRequest::Stop);
+    let want = reference.step(Some(2.5)).unwrap();
+    let msgs = b.take();
+    assert_eq!(command(&msgs), (3, want.out.u.to_bits(), 0b101));
+    match &msgs[1] {
+        Message::Status(s) => {
+            assert_eq!((s.mode, s.samples_done), (Mode::Lockstep as u8, 4));
+            assert_eq!((s.measurements_used, s.measurements_missing, s.measurements_stale), (2, 1, 1));
+        }
+        other => panic!("{other:?}"),
+    }
+    let waits = 3 + limits::LOCKSTEP_PATIENCE_TICKS + 1;
+    assert_eq!(b.dev.diagnostics().lockstep_waits, waits);
+}
+
+#[test]
 fn plant_run_holds_the_last_input_over_lost_commands() {
     let mut b = Bench::new();
     b.send(Message::SetPlant(plant_params()));
@@ -468,14 +557,288 @@ fn a_bad_orc_placement_is_rejected_and_the_link_refuses_the_orc() {
     let n = msg.encode_payload(&mut buf).unwrap();
     buf[n - 1] = 9;
     assert!(matches!(Message::decode(kind::SET_ORC, &buf[..n]), Err(WireError::BadValue("ORC placement"))));
-    // A board serving the link answers SetOrc with a fault, not an Ack.
+    // A board without the ORC answers SetOrc with a fault, not an Ack; one with it, before
+    // the controller's parameters, too.
     let mut dev = Device::new();
     let mut sent = Vec::new();
     dev.on_packet(Ok(Packet { seq: 4, msg }), &mut |b: &[u8]| sent.extend_from_slice(b));
     let mut dec = Decoder::new();
     let answers: Vec<Message> = sent.iter().filter_map(|&b| dec.push(b)).map(|p| p.unwrap().msg).collect();
     assert!(
-        matches!(&answers[..], [Message::Fault(f)] if f.code == FaultCode::Unexpected && f.seq == 4),
+        matches!(&answers[..], [Message::Fault(f)] if f.seq == 4
+            && f.code == if cfg!(feature = "orc") { FaultCode::NotConfigured } else { FaultCode::Unexpected }),
         "{answers:?}"
     );
+}
+
+/// A bench whose device has converters, recorded by [`Recorder`].
+#[derive(Default)]
+struct Recorder {
+    driven: Vec<f32>,
+    y: Option<f32>,
+}
+
+impl crate::analog::FrontEnd for Recorder {
+    fn sense(&mut self) -> Option<f32> {
+        self.y
+    }
+    fn drive(&mut self, u: f32) -> f32 {
+        self.driven.push(u);
+        u
+    }
+}
+
+impl Bench {
+    fn tick_with(&mut self, fe: &mut Recorder) -> TimerRequest {
+        self.dev.on_tick(0, fe, &|| 0, &mut Self::sink(&mut self.out))
+    }
+}
+
+#[test]
+fn a_command_far_ahead_is_refused_not_stepped_to() {
+    let mut b = Bench::new();
+    b.send(Message::SetPlant(plant_params()));
+    b.send(Message::Start { mode: Mode::Plant, samples: 0 });
+    b.take();
+    // Far ahead: refused at once (the plant is not stepped 4·10⁹ times).
+    let t = std::time::Instant::now();
+    b.send(Message::Command { k: u32::MAX - 1, u: 0.5, used: 0, flags: 0 });
+    b.send(Message::Command { k: u32::MAX, u: 0.5, used: 0, flags: 0 });
+    b.send(Message::Command { k: limits::MAX_CATCH_UP + 1, u: 0.5, used: 0, flags: 0 });
+    assert!(t.elapsed() < std::time::Duration::from_millis(100));
+    assert!(b.take().is_empty());
+    assert_eq!(b.dev.status().measurements_stale, 3);
+    // Within the catch-up window: the plant holds 0 V over the skipped samples.
+    b.send(Message::Command { k: limits::MAX_CATCH_UP, u: 0.5, used: 0, flags: 0 });
+    let mut plant = OnChipPlant::new(&plant_params()).unwrap();
+    for _ in 0..limits::MAX_CATCH_UP {
+        plant.step(0.0);
+    }
+    assert_eq!(b.take(), [Message::Measurement { k: limits::MAX_CATCH_UP, y: plant.step(0.5) }]);
+}
+
+#[test]
+fn a_plant_input_outside_the_drive_limits_is_refused_and_outputs_stay_finite() {
+    let mut b = Bench::new();
+    b.send(Message::SetPlant(plant_params()));
+    b.send(Message::Start { mode: Mode::Plant, samples: 0 });
+    b.take();
+    for (k, u) in [(0, 1e20f32), (0, 1e3), (0, f32::NAN), (0, -10.5), (0, f32::NEG_INFINITY)] {
+        b.send(Message::Command { k, u, used: 0, flags: 0 });
+    }
+    assert!(b.take().is_empty());
+    assert_eq!(b.dev.status().measurements_stale, 5);
+    for k in 0..2000 {
+        b.send(Message::Command { k, u: 10.0 * (k as f32 * 0.1445).sin(), used: 0, flags: 0 });
+    }
+    for m in b.take() {
+        match m {
+            Message::Measurement { y, .. } => assert!(y.is_finite()),
+            other => panic!("{other:?}"),
+        }
+    }
+}
+
+#[test]
+fn parameters_out_of_range_are_refused_naming_the_field() {
+    let mut b = Bench::new();
+    type Change = fn(&mut ControllerParams);
+    let cases: [(Change, &str); 5] = [
+        (|p| p.sample_period_us = 0, "sample period"),
+        (|p| p.sample_period_us = 10_000_000, "sample period"),
+        (|p| p.amplitude_um = 1e30, "reference amplitude"),
+        (|p| p.fade_samples = u32::MAX, "fade-in"),
+        (|p| p.saturation.u_max = 1e9, "saturation"),
+    ];
+    for (change, field) in cases {
+        let mut p = controller_params(&[]);
+        change(&mut p);
+        b.send(Message::SetController(p));
+        match &b.take()[..] {
+            [Message::Fault(f)] => {
+                assert_eq!(f.code, FaultCode::InvalidParams);
+                assert!(f.text.contains(field), "{} vs {field}", f.text);
+            }
+            other => panic!("{other:?}"),
+        }
+    }
+    let bad_safety = [
+        SafetyParams { u_min: 1.0, ..SafetyParams::DEFAULT },
+        SafetyParams { u_max: f32::NAN, ..SafetyParams::DEFAULT },
+        SafetyParams { slew_v_per_s: 0.0, ..SafetyParams::DEFAULT },
+        SafetyParams { host_timeout_ms: 0, ..SafetyParams::DEFAULT },
+    ];
+    for s in bad_safety {
+        b.send(Message::SetSafety(s));
+        assert!(matches!(&b.take()[..], [Message::Fault(f)] if f.code == FaultCode::InvalidParams));
+    }
+}
+
+#[test]
+fn bad_frames_are_answered_at_a_bounded_rate_and_all_counted() {
+    let mut b = Bench::new();
+    for _ in 0..100 {
+        b.dev.on_packet(Err(WireError::Crc), &mut Bench::sink(&mut b.out));
+    }
+    assert_eq!(b.take().len(), limits::FAULT_BURST as usize);
+    // One more answer per refill period.
+    for _ in 0..(3 * limits::FAULT_REFILL_TICKS) {
+        b.tick();
+        b.dev.on_packet(Err(WireError::Cobs), &mut Bench::sink(&mut b.out));
+    }
+    assert_eq!(b.take().len(), 3);
+    let d = b.dev.diagnostics();
+    assert_eq!((d.bad_frames, d.faults_suppressed), (100 + 3 * limits::FAULT_REFILL_TICKS, 96 + 27));
+    assert_eq!(b.dev.status().rx_bad, d.bad_frames);
+}
+
+/// The drives a ramp wrote, checked: monotonic towards 0, steps of at most the slew.
+fn check_ramp(from: f32, ramp: &[f32], step: f32) {
+    let mut prev = from;
+    for &v in ramp {
+        assert!(v.abs() <= prev.abs() && (v - prev).abs() <= step * 1.0001, "{prev} -> {v}");
+        prev = v;
+    }
+    assert_eq!(ramp.last(), Some(&0.0));
+}
+
+#[test]
+fn a_silent_host_ends_a_local_run_and_the_drive_ramps_to_zero() {
+    let mut b = Bench { dev: Device::new().with_converters(), seq: 0, out: Vec::new() };
+    b.send(Message::SetSafety(SafetyParams {
+        host_timeout_ms: 20,
+        slew_v_per_s: 5.0,
+        ..SafetyParams::DEFAULT
+    }));
+    b.send(Message::SetController(ControllerParams { fade_samples: 0, ..controller_params(&[]) }));
+    b.send(Message::Start { mode: Mode::Local, samples: 0 });
+    b.take();
+    let mut fe = Recorder::default();
+    // 20 ticks of the run, the sensor answering; then the host says nothing.
+    for k in 0..20 {
+        b.tick_with(&mut fe);
+        fe.y = Some(k as f32 * 0.1);
+    }
+    let v_run = *fe.driven.last().unwrap();
+    assert!(v_run.abs() > 0.05, "{v_run}");
+    let ticks_run = fe.driven.len();
+    let mut safe = None;
+    for _ in 0..200 {
+        b.tick_with(&mut fe);
+        for m in b.take() {
+            if let Message::Safe { reason, ticks, period_us } = m {
+                safe = Some((reason, ticks, period_us));
+            }
+        }
+        if safe.is_some() {
+            break;
+        }
+    }
+    let (reason, ticks, period) = safe.expect("the board reports its safe state");
+    assert_eq!((reason, period), (SafeReason::HostLost as u8, 1000));
+    // Timeout (20 ticks after the last frame; the run's 20 ticks count) then the ramp.
+    let ramp = &fe.driven[ticks_run..];
+    check_ramp(v_run, ramp, 0.005);
+    assert!(ramp.len() > 10, "{ramp:?}");
+    assert_eq!(ticks as usize, 20 + ramp.len());
+    assert_eq!(b.dev.drive_v(), 0.0);
+    assert!(!b.dev.running());
+    // A new run can start.
+    b.send(Message::Start { mode: Mode::Local, samples: 1 });
+    assert!(matches!(&b.take()[..], [Message::Ack { .. }]));
+}
+
+#[test]
+fn after_a_watchdog_reset_the_drive_ramps_from_where_it_was() {
+    let mut b = Bench { dev: Device::new().with_converters(), seq: 0, out: Vec::new() };
+    // Saved with a slew of 100 V/s (0.1 V per tick); a saved slew out of range is not used.
+    b.dev.begin_safe_state(SafeReason::Watchdog, -7.3, f32::NAN);
+    let mut fe = Recorder::default();
+    b.send(Message::Start { mode: Mode::Local, samples: 1 });
+    assert!(matches!(&b.take()[..], [Message::Fault(f)] if f.code == FaultCode::Busy));
+    for _ in 0..100 {
+        b.tick_with(&mut fe);
+    }
+    check_ramp(-7.3, &fe.driven, 0.1);
+    assert!((73..=74).contains(&fe.driven.len()), "{}", fe.driven.len());
+    let msgs = b.take();
+    assert!(msgs.iter().any(|m| matches!(m, Message::Safe { reason: 4, .. })), "{msgs:?}");
+    assert_eq!(b.dev.diagnostics().reset_cause, SafeReason::Watchdog as u8);
+}
+
+#[test]
+fn a_non_finite_step_faults_and_ramps() {
+    let mut b = Bench { dev: Device::new().with_converters(), seq: 0, out: Vec::new() };
+    let mut p = controller_params(&[]);
+    // A model whose inverse explodes: a huge AR gain drives u_f to the rails, then the
+    // drive limits clamp it; the output stays finite, so instead break the sensor.
+    p.saturation = boucwen_core::compensator::Saturation::symmetric(5.0);
+    b.send(Message::SetController(p));
+    b.send(Message::Start { mode: Mode::Local, samples: 0 });
+    b.take();
+    let mut fe = Recorder::default();
+    for k in 0..50 {
+        fe.y = Some(if k == 30 { f32::NAN } else { 1e9 });
+        b.send(Message::GetStatus);
+        b.tick_with(&mut fe);
+    }
+    // Out-of-range or non-finite readings are not used; the run goes on, drive finite.
+    assert!(fe.driven.iter().all(|u| u.is_finite() && u.abs() <= 5.0));
+    assert!(b.dev.running());
+    let tele: Vec<u8> = b
+        .take()
+        .into_iter()
+        .filter_map(|m| if let Message::Telemetry { flags, .. } = m { Some(flags) } else { None })
+        .collect();
+    assert_eq!(tele.len(), 50);
+    assert!(tele.iter().all(|f| f & command_flags::Y_MISSING != 0));
+}
+
+#[test]
+fn the_simulated_actuator_run_is_the_closed_loop_bit_for_bit() {
+    let c = controller_params(&[]);
+    let mut b = Bench::new();
+    b.send(Message::SetController(c.clone()));
+    b.send(Message::SetPlant(plant_params()));
+    b.send(Message::Start { mode: Mode::Simulated, samples: 300 });
+    b.take();
+    let mut cl = ClosedLoop::new(Controller::new(&c).unwrap(), OnChipPlant::new(&plant_params()).unwrap());
+    let mut y_prev = f32::NAN;
+    for k in 0..300u32 {
+        b.send(Message::GetStatus);
+        b.tick();
+        let s = cl.control().unwrap();
+        let y = cl.actuate(s.out.u);
+        let tele: Vec<Message> =
+            b.take().into_iter().filter(|m| matches!(m, Message::Telemetry { .. })).collect();
+        match &tele[..] {
+            [Message::Telemetry { k: kk, u, y: yy, .. }] => {
+                assert_eq!((*kk, u.to_bits(), yy.to_bits()), (k, s.out.u.to_bits(), y_prev.to_bits()))
+            }
+            other => panic!("{other:?}"),
+        }
+        y_prev = y;
+    }
+}
+
+#[test]
+fn new_drive_limits_that_exclude_the_held_drive_are_refused() {
+    let mut b = Bench { dev: Device::new().with_converters(), seq: 0, out: Vec::new() };
+    b.send(Message::SetController(ControllerParams { fade_samples: 0, ..controller_params(&[]) }));
+    b.send(Message::Start { mode: Mode::Local, samples: 30 });
+    let mut fe = Recorder { driven: Vec::new(), y: Some(0.5) };
+    for _ in 0..30 {
+        b.tick_with(&mut fe);
+    }
+    b.take();
+    let held = b.dev.drive_v();
+    assert!(!b.dev.running() && held.abs() > 0.01, "{held}");
+    // Limits that would leave the held drive outside them: refused, the old ones stay.
+    let tight = SafetyParams { u_min: -held.abs() / 2.0, u_max: held.abs() / 2.0, ..SafetyParams::DEFAULT };
+    b.send(Message::SetSafety(tight));
+    assert!(matches!(&b.take()[..], [Message::Fault(f)] if f.code == FaultCode::Busy), "{held}");
+    // Limits that contain it are taken.
+    let wide = SafetyParams { u_min: -9.0, u_max: 9.0, ..SafetyParams::DEFAULT };
+    b.send(Message::SetSafety(wide));
+    assert!(matches!(&b.take()[..], [Message::Ack { kind: kind::SET_SAFETY, .. }]));
 }

@@ -320,10 +320,17 @@ impl RecordError {
 /// Longest part of an offending field quoted in a message, in characters.
 pub const EXCERPT_CHARS: usize = 24;
 
-/// `text` as quoted in a message: at most [`EXCERPT_CHARS`] characters, then `…`.
+/// `text` as quoted in a message: at most [`EXCERPT_CHARS`] characters, then `…`; control
+/// characters shown as `?` (a message stays one printable line).
 pub fn excerpt(text: &str) -> String {
-    match text.char_indices().nth(EXCERPT_CHARS) {
-        Some((cut, _)) => format!("{}…", &text[..cut]),
-        None => text.to_string(),
+    excerpt_n(text, EXCERPT_CHARS)
+}
+
+/// [`excerpt`] of at most `n` characters.
+pub(super) fn excerpt_n(text: &str, n: usize) -> String {
+    let mut out: String = text.chars().take(n).map(|c| if c.is_control() { '?' } else { c }).collect();
+    if text.chars().nth(n).is_some() {
+        out.push('…');
     }
+    out
 }

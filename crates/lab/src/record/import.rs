@@ -6,7 +6,7 @@
 //! not say it itself is in [`ImportOptions`] (the CLI's `--columns`, `--sample-rate`,
 //! `--u-unit`, `--y-unit`).
 
-use super::error::excerpt;
+use super::error::{excerpt, excerpt_n};
 use super::{At, Col, ErrorKind, MIN_SAMPLES, Record, RecordError, TS_MAX_S, TS_MIN_S, UNIFORM_TOLERANCE};
 use std::fmt;
 use std::path::Path;
@@ -400,17 +400,25 @@ fn split_unit(name: &str) -> (&str, Option<&str>) {
     (name, None)
 }
 
-/// The columns found, for messages: `time, Voltage, disp` or `1, 2, 3`.
+/// Most columns a message lists.
+const LISTED_COLUMNS: usize = 8;
+
+/// The columns found, for messages: `time, Voltage, disp` or `1, 2, 3`; at most
+/// [`LISTED_COLUMNS`] of them, then how many there are.
 fn found_list(names: Option<&[String]>, count: usize) -> String {
-    match names {
+    let mut list: Vec<String> = match names {
         Some(names) => names
             .iter()
+            .take(LISTED_COLUMNS)
             .enumerate()
-            .map(|(i, n)| if n.is_empty() { format!("{} (unnamed)", i + 1) } else { excerpt(n) })
-            .collect::<Vec<_>>()
-            .join(", "),
-        None => (1..=count).map(|i| i.to_string()).collect::<Vec<_>>().join(", "),
+            .map(|(i, n)| if n.is_empty() { format!("{} (unnamed)", i + 1) } else { excerpt_n(n, 16) })
+            .collect(),
+        None => (1..=count.min(LISTED_COLUMNS)).map(|i| i.to_string()).collect(),
+    };
+    if count > LISTED_COLUMNS {
+        list.push(format!("… {count} in all"));
     }
+    list.join(", ")
 }
 
 /// The unit that brings an output span (µm, as read) between [`MIN_SPAN_UM`] and

@@ -478,3 +478,12 @@ fn flags_are_checked() {
         r#"--y-unit "furlong": expected m, mm, um or nm"#
     );
 }
+
+#[test]
+fn a_message_lists_at_most_eight_columns() {
+    let header: Vec<String> = (0..500).map(|i| format!("column_with_a_long_name_{i}")).collect();
+    let e = parse_err(&format!("{}\n", header.join(",")));
+    let msg = e.to_string();
+    assert!(msg.contains("… 500 in all"), "{msg}");
+    assert!(msg.len() < 400, "{} bytes", msg.len());
+}

@@ -1,0 +1,90 @@
+//! Speed of the output-error fit, and of a whole diagnosis against the record's length.
+//!
+//! Run with `cargo bench --bench fit` (`-- --quick` for a short run). IDs:
+//! - `fit/oe/extended/20k`, `fit/oe/enhanced3/20k`: `fit::fit_oe` as `boucwen identify`
+//!   runs it (the diagnosis' fit options, five starts) on the first half of a 20,000-sample
+//!   record of the virtual bimorph with a hidden 3rd harmonic (seed 1);
+//! - `diagnose/10k`, `diagnose/100k`, `diagnose/1m`: reading a CSV record of the default
+//!   actuator under a 23 Hz sine (10⁴, 10⁵, 10⁶ samples at 1 kHz) and diagnosing it, as
+//!   `boucwen diagnose` does (less the printing). The records are simulated and written
+//!   before the timing.
+//!
+//! Before the timing, one run of each prints what it fitted or found.
+
+use boucwen_lab::diagnose::{self, Thresholds};
+use boucwen_lab::fit::{self, Averaging, ModelSpec, OeOptions};
+use boucwen_lab::hidden::{Case, Effect};
+use boucwen_lab::record::Record;
+use boucwen_lab::{analysis, experiment};
+use boucwen_sim::{Bimorph, Scenario};
+use criterion::{Criterion, criterion_group, criterion_main};
+use std::hint::black_box;
+use std::time::Duration;
+
+fn fits(c: &mut Criterion) {
+    let mut case = Case::generate(Effect::OddHarmonic(3), 1).expect("case");
+    case.seconds = 20.0;
+    let rec = case.record().expect("record");
+    let (u, y, ts) = (&rec.u, &rec.y, rec.ts);
+    let split = u.len() / 2;
+    let f = analysis::estimate_drive(u, ts).expect("drive");
+    let opt = OeOptions {
+        lm_starts: diagnose::TERM_STARTS,
+        averaging: Averaging::Periods,
+        ..diagnose::fit_options(split, ts)
+    };
+    let mut g = c.benchmark_group("fit/oe");
+    g.sample_size(20).measurement_time(Duration::from_secs(10));
+    for (id, spec) in
+        [("extended/20k", ModelSpec::extended(f)), ("enhanced3/20k", ModelSpec::enhanced(f, &[3]))]
+    {
+        let run = || fit::fit_oe(u, y, ts, split, &spec, &[], &opt).expect("fit");
+        let first = run();
+        let held = fit::free_run_rms(&first.model, u, y, ts, split).expect("simulate");
+        println!(
+            "fit/oe/{id}: {} held out {held:.4} µm, {} after {} iterations, {} evaluations",
+            first.model.name(),
+            first.stop,
+            first.iterations,
+            first.evaluations
+        );
+        g.bench_function(id, |b| b.iter(|| black_box(run().rms_fit)));
+    }
+    g.finish();
+}
+
+fn diagnoses(c: &mut Criterion) {
+    let dir = std::env::temp_dir().join(format!("boucwen-bench-fit-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).expect("temp dir");
+    let scenario = Scenario::default();
+    let ts = scenario.sampling.ts_s;
+    let mut g = c.benchmark_group("diagnose");
+    g.sample_size(10).warm_up_time(Duration::from_millis(1)).measurement_time(Duration::from_secs(20));
+    for (id, n) in [("10k", 10_000), ("100k", 100_000), ("1m", 1_000_000)] {
+        let u = experiment::sine(1.0, 23.0, ts, n).expect("drive");
+        let y = Bimorph::new(&scenario).and_then(|mut b| b.run(&u)).expect("simulation");
+        let path = dir.join(format!("sine23-{id}.csv"));
+        Record::new("sine23", 0.0, ts, u, y, None).and_then(|r| r.write(&path)).expect("record");
+        let run = || {
+            let r = Record::read(&path).expect("read");
+            r.validate_for_fit(diagnose::MIN_SAMPLES).expect("valid");
+            diagnose::diagnose(&r.u, &r.y, r.ts, &Thresholds::default()).expect("diagnosis")
+        };
+        let t0 = std::time::Instant::now();
+        let d = run();
+        println!(
+            "diagnose/{id}: {} -> {} held out {:.4} -> {:.4} µm in {:.2} s",
+            d.baseline.name(),
+            d.model.name(),
+            d.baseline_rms_um,
+            d.model_rms_um,
+            t0.elapsed().as_secs_f64()
+        );
+        g.bench_function(id, |b| b.iter(|| black_box(run().model_rms_um)));
+    }
+    g.finish();
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+criterion_group!(benches, fits, diagnoses);
+criterion_main!(benches);
