@@ -277,8 +277,7 @@ pub fn diagnosis_residual(d: &Diagnosis, y: &[f64]) -> Chart {
 /// Writes the page of a periodic or multisine diagnosis into `dir`: `index.html` (the
 /// terminal report and the figures), `diagnosis.json`, `lines.svg` (the output at the
 /// excited lines, the odd lines left out and the even lines, with the noise, for the first
-/// realisation) and `residual_lines.svg` (the held-out residual's lines of the baseline and
-/// of the model with its terms). Returns the files written.
+/// realisation). Returns the files written.
 pub fn write_periodic(d: &PeriodicDiagnosis, source: &str, dir: &Path) -> Result<Vec<PathBuf>, ReportError> {
     let mut out = Output::new(dir)?;
     let figures = [("lines.svg", periodic_lines(d).to_svg())];
