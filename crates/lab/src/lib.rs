@@ -14,6 +14,7 @@
 //! | [`experiment`] | one closed-loop runner for any core `Controller` on any core `Plant`: the compensator (with preview) and the peers |
 //! | [`simulate`] | the virtual bimorph on a sine or a drive file, to a record |
 //! | [`sweep`] | the paper's Figs. 10 and 16 on the virtual bimorph |
+//! | [`sweep_measured`] | the identification half of the sweep (Fig. 10) from measured records, one sine frequency each |
 //! | [`diagnose`] | what a model gets wrong on a record, the cause, the term that fixes it |
 //! | [`distortion`] | periodic and multisine drives: lines of whole periods, the BLA, noise and distortion levels at odd and even non-excited lines |
 //! | [`causes`] | the causes a sine diagnosis tries beyond harmonics and drift (saturation, creep, input delay): their evidence and fits |
@@ -43,4 +44,5 @@ pub mod report;
 pub mod simulate;
 pub mod steady;
 pub mod sweep;
+pub mod sweep_measured;
 pub mod terms;

@@ -90,13 +90,35 @@ fn col(result: &SweepResult, f: impl Fn(&crate::sweep::Row) -> f64) -> Vec<f64> 
 
 /// Fig. 10: held-out free-run RMS modelling error against frequency.
 pub fn modelling_error(r: &SweepResult) -> Chart {
-    let x = col(r, |w| w.freq_hz);
+    modelling_error_rows(&r.rows)
+}
+
+/// Fig. 10 from the rows of a sweep, simulated or measured.
+pub fn modelling_error_rows(rows: &[crate::sweep::Row]) -> Chart {
+    let col = |f: fn(&crate::sweep::Row) -> f64| -> Vec<f64> { rows.iter().map(f).collect() };
+    let x = col(|w| w.freq_hz);
     Chart::new("Modelling error (free run, held-out half)", "drive frequency (Hz)", "RMS error (µm)")
-        .with(Series::line("extended, OE fit", x.clone(), col(r, |w| w.rms_extended_oe_um), 0).points())
-        .with(Series::line("enhanced, OE fit", x.clone(), col(r, |w| w.rms_enhanced_oe_um), 1).points())
-        .with(Series::line("extended, paper RLS", x.clone(), col(r, |w| w.rms_extended_um), 2).dashed())
-        .with(Series::line("enhanced, paper RLS", x, col(r, |w| w.rms_enhanced_um), 3).dashed())
+        .with(Series::line("extended, OE fit", x.clone(), col(|w| w.rms_extended_oe_um), 0).points())
+        .with(Series::line("enhanced, OE fit", x.clone(), col(|w| w.rms_enhanced_oe_um), 1).points())
+        .with(Series::line("extended, paper RLS", x.clone(), col(|w| w.rms_extended_um), 2).dashed())
+        .with(Series::line("enhanced, paper RLS", x, col(|w| w.rms_enhanced_um), 3).dashed())
         .log_y()
+}
+
+/// Writes the files of `boucwen sweep --measured` into `dir`: `sweep.csv` (the columns of
+/// the simulated sweep; the tracking columns `nan`: they need the actuator),
+/// `modelling_error.svg` (Fig. 10), `summary.txt` (what changes with frequency, the records
+/// skipped and why) and `sweep.json`. Returns the files written.
+pub fn write_measured_sweep(
+    m: &crate::sweep_measured::MeasuredSweep,
+    dir: &Path,
+) -> Result<Vec<PathBuf>, ReportError> {
+    let mut out = Output::new(dir)?;
+    out.put("sweep.csv", m.csv())?;
+    out.put("modelling_error.svg", modelling_error_rows(&m.rows()).to_svg())?;
+    out.put("summary.txt", m.summary())?;
+    out.put("sweep.json", format!("{:#}\n", m.json()))?;
+    Ok(out.written)
 }
 
 /// Fig. 16: tracking RMSE against frequency.
