@@ -84,7 +84,13 @@ fn sine_findings_carry_their_evidence_and_name_each_hidden_cause() {
         let j = o.json();
         let what = format!("{} seed 1", e.name());
         let found = evidence(&j, &what);
-        eprintln!("{what}: {found:?} truth {:?}", c.truth);
+        eprintln!("{what}: truth {:?}; gain {:.1} %", c.truth, j["gain_pct"]);
+        for f in j["findings"].as_array().unwrap() {
+            eprintln!(
+                "  {} order {} level {} {} share {:.3} kept {}",
+                f["kind"], f["order"], f["level"], f["level_unit"], f["residual_share"], f["kept"]
+            );
+        }
         for t in &c.truth {
             assert!(named(&found, t), "{what}: {t:?} not named: {found:?}");
         }
@@ -102,7 +108,10 @@ fn periodic_findings_carry_their_evidence_and_name_the_hidden_parity() {
         let o = outcome(&c.records().expect("records"));
         let j = o.json();
         let found = evidence(&j, &c.name());
-        eprintln!("{}: {found:?}", c.name());
+        eprintln!("{}: {found:?}; gain {:.1} %", c.name(), j["gain_pct"]);
+        for f in j["findings"].as_array().unwrap() {
+            eprintln!("  {} level {} band {} kept {}", f["kind"], f["level"], f["band_hz"], f["kept"]);
+        }
         let t = c.truth().expect("a hidden nonlinearity");
         assert!(named(&found, &t), "{}: {t:?} not named: {found:?}", c.name());
         assert!(
