@@ -212,7 +212,7 @@ fn classify(input: MeasuredInput) -> Result<Classified, Skipped> {
     // takes it (its steady window is a stretch of uniform level, not where it starts).
     let n = r.u.len().min(r.y.len());
     let end = match drive.period_samples {
-        Some(p) if (n - w.end) as f64 <= p.ceil() => n,
+        Some(p) if n.saturating_sub(w.end) as f64 <= p.ceil() => n,
         _ => w.end,
     };
     let (u, y) = match drive.kind {
@@ -226,17 +226,10 @@ fn classify(input: MeasuredInput) -> Result<Classified, Skipped> {
     let role = match drive.kind {
         DriveKind::Sine => {
             let f = (drive.freq_hz * 1e6).round() / 1e6;
-            let held_out = 0.5 * u.len() as f64 * r.ts * f;
             if u.len() < MIN_SAMPLES {
                 return Err(skip(format!(
                     "the steady drive holds {} samples; the sweep needs at least {MIN_SAMPLES}",
                     u.len()
-                )));
-            }
-            if held_out < MIN_HELD_OUT_PERIODS && f > LOOP_MAX_HZ {
-                return Err(skip(format!(
-                    "{held_out:.1} periods of {f} Hz in the held-out half; the sweep needs at least \
-                     {MIN_HELD_OUT_PERIODS}"
                 )));
             }
             Role::Sine { f, u, y }
@@ -328,9 +321,25 @@ pub fn run(inputs: Vec<MeasuredInput>) -> Result<MeasuredSweep, MeasuredError> {
     let quasi_static = unique[0].1 <= LOOP_MAX_HZ;
     let (loop_name, f_loop, u_l, y_l) = if quasi_static { unique.remove(0) } else { unique[0].clone() };
     let loop_fit = if quasi_static { u_l.len() } else { u_l.len() / 2 };
+    // A row needs whole periods to test on.
+    unique.retain(|(name, f, u, _)| {
+        let held_out = 0.5 * u.len() as f64 * ts * f;
+        let enough = held_out >= MIN_HELD_OUT_PERIODS;
+        if !enough {
+            skipped.push(Skipped {
+                name: name.clone(),
+                why: format!(
+                    "{held_out:.1} periods of {f} Hz in the held-out half; the sweep needs at least \
+                     {MIN_HELD_OUT_PERIODS}"
+                ),
+            });
+        }
+        enough
+    });
     if unique.is_empty() {
-        return Err(MeasuredError::NoSine { loop_only: Some(loop_name), skipped });
+        return Err(MeasuredError::NoSine { loop_only: quasi_static.then_some(loop_name), skipped });
     }
+    let loop_is_row = unique.iter().any(|r| r.0 == loop_name);
     let structure = sweep::structure_from(&u_s, &y_s, &u_l, &y_l, f_loop, loop_fit, ts)
         .map_err(|e| MeasuredError::Structure(structure_source.clone(), e))?;
     let results: Vec<Result<MeasuredRow, Skipped>> = unique
@@ -383,7 +392,7 @@ pub fn run(inputs: Vec<MeasuredInput>) -> Result<MeasuredSweep, MeasuredError> {
     Ok(MeasuredSweep {
         structure,
         structure_source,
-        loop_source: (loop_name, !quasi_static),
+        loop_source: (loop_name, loop_is_row),
         ts,
         rows,
         skipped,
