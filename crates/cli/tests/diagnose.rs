@@ -232,5 +232,17 @@ fn realisations_of_a_multisine_are_diagnosed_together() {
             String::from_utf8_lossy(&o.stdout).lines().map(|l| serde_json::from_str(l).unwrap()).collect();
         assert_eq!(lines.len(), 2);
         assert!(lines.iter().all(|l| l["held_out"] == "periods"), "{lines:?}");
+        // Realisations of one drive share the sample interval: another is one line.
+        let r2 = &case.records().unwrap()[1];
+        let slow =
+            boucwen_lab::record::Record::new("slow", 0.0, 2.0 * r2.ts, r2.u.clone(), r2.y.clone(), None)
+                .unwrap();
+        let p = tmp(&format!("{}-slow.csv", case.name()));
+        slow.write(&p).unwrap();
+        let o = boucwen(&["diagnose", "--realisations", &paths[0], p.to_str().unwrap()]);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(1), "{err}");
+        assert_eq!(err.trim_end().lines().count(), 1, "{err}");
+        assert!(err.contains("share the sample interval") && err.contains("-slow.csv"), "{err}");
     }
 }
