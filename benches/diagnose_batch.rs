@@ -13,9 +13,20 @@
 //! It prints one line per effect (right / drawn, and the median gain) and the whole share,
 //! with the wall time. This is a measurement, not a test: it asserts nothing and exits 0
 //! unless a case cannot be drawn or recorded.
+//!
+//! Then (`--kinds new` runs only these, `--kinds old` only the ones above) the kinds of
+//! [`boucwen_lab::effects`], `N` seeds each from `S`: sine records with saturation of the
+//! drive or of the output, creep, an input delay, a 5th harmonic with drift and the sensor's
+//! range with a 3rd harmonic, right when every hidden effect is named (kind; order for a
+//! harmonic) and the first finding is one of them; periodic records (a multisine in two
+//! realisations, a triangle) with a hidden odd or even nonlinearity, right when the first
+//! finding names its parity, and clean, right when there is no finding.
 
 use boucwen_lab::diagnose::{self, Diagnosis, Kind, Thresholds};
+use boucwen_lab::effects::{Nonlinearity, PeriodicCase, PeriodicDrive, SineCase, SineEffect, Truth};
 use boucwen_lab::hidden::{Case, Effect};
+use boucwen_lab::periodic::Realisation;
+use boucwen_lab::record::Record;
 use rayon::prelude::*;
 use std::time::Instant;
 
@@ -81,10 +92,13 @@ struct Args {
     seed: u64,
     verbose: bool,
     dump: Option<std::path::PathBuf>,
+    /// Run the kinds of `hidden` (old), of `effects` (new), or both.
+    old: bool,
+    new: bool,
 }
 
 fn args() -> Result<Args, String> {
-    let mut a = Args { per_effect: 40, seed: 1000, verbose: false, dump: None };
+    let mut a = Args { per_effect: 40, seed: 1000, verbose: false, dump: None, old: true, new: true };
     let mut it = std::env::args().skip(1);
     while let Some(arg) = it.next() {
         let mut value = |name: &str| -> Result<u64, String> {
@@ -96,6 +110,12 @@ fn args() -> Result<Args, String> {
             "--seed" => a.seed = value("--seed")?,
             "--verbose" => a.verbose = true,
             "--dump" => a.dump = Some(it.next().ok_or("--dump needs a directory")?.into()),
+            "--kinds" => match it.next().as_deref() {
+                Some("old") => a.new = false,
+                Some("new") => a.old = false,
+                Some("all") => {}
+                other => return Err(format!("--kinds: {other:?} is not old, new or all")),
+            },
             // cargo bench passes `--bench`; criterion-style filters are not used here.
             "--bench" => {}
             other => return Err(format!("unknown argument {other:?}")),
@@ -116,6 +136,152 @@ fn main() {
             std::process::exit(2);
         }
     };
+    if a.old {
+        old_kinds(&a);
+    }
+    if a.new {
+        new_kinds(&a);
+    }
+}
+
+/// The sine effects of `effects`, in the order printed.
+const SINE_EFFECTS: [SineEffect; 6] = [
+    SineEffect::Saturation,
+    SineEffect::SensorRange,
+    SineEffect::Creep,
+    SineEffect::Delay,
+    SineEffect::HarmonicAndDrift(5),
+    SineEffect::RangeAndHarmonic(3),
+];
+
+fn truth_named(t: &Truth, kind: Kind, order: Option<u32>) -> bool {
+    match t {
+        Truth::Harmonic { order: n, .. } => kind == Kind::OddHarmonic && order == Some(*n),
+        Truth::Drift => kind == Kind::Drift,
+        Truth::Saturation { .. } => kind == Kind::Saturation,
+        Truth::Creep => kind == Kind::Creep,
+        Truth::Delay { .. } => kind == Kind::InputDelay,
+        Truth::OddDistortion => kind == Kind::OddDistortion,
+        Truth::EvenDistortion => kind == Kind::EvenDistortion,
+    }
+}
+
+/// One new-kind case: its name, the records, the truth.
+enum NewCase {
+    Sine(SineEffect),
+    Periodic(PeriodicDrive, Nonlinearity),
+}
+
+impl NewCase {
+    fn name(&self) -> String {
+        match self {
+            NewCase::Sine(e) => e.name(),
+            NewCase::Periodic(d, n) => {
+                format!(
+                    "{}-{}",
+                    if *d == PeriodicDrive::Triangle { "triangle" } else { "multisine" },
+                    n.name()
+                )
+            }
+        }
+    }
+
+    /// The records and the truth of seed `seed`.
+    fn draw(&self, seed: u64) -> Result<(Vec<Record>, Vec<Truth>), String> {
+        match self {
+            NewCase::Sine(e) => {
+                let c = SineCase::generate(*e, seed).map_err(|e| e.to_string())?;
+                Ok((vec![c.record().map_err(|e| e.to_string())?], c.truth.clone()))
+            }
+            NewCase::Periodic(d, n) => {
+                let c = PeriodicCase::generate(*d, *n, seed).map_err(|e| e.to_string())?;
+                Ok((c.records().map_err(|e| e.to_string())?, c.truth().into_iter().collect()))
+            }
+        }
+    }
+}
+
+/// The kinds of `effects`: the share right per kind (see the module docs).
+fn new_kinds(a: &Args) {
+    let mut cases: Vec<NewCase> = SINE_EFFECTS.iter().map(|&e| NewCase::Sine(e)).collect();
+    for d in [PeriodicDrive::Multisine, PeriodicDrive::Triangle] {
+        for n in [Nonlinearity::None, Nonlinearity::Odd, Nonlinearity::Even] {
+            cases.push(NewCase::Periodic(d, n));
+        }
+    }
+    let jobs: Vec<(usize, u64)> =
+        (0..cases.len()).flat_map(|i| (0..a.per_effect).map(move |k| (i, a.seed + k))).collect();
+    let start = Instant::now();
+    let results: Vec<Result<(usize, bool, f64, String), String>> = jobs
+        .par_iter()
+        .map(|&(i, seed)| {
+            let c = &cases[i];
+            let (records, truth) = c.draw(seed).map_err(|e| format!("{} {seed}: {e}", c.name()))?;
+            let recs: Vec<Realisation> =
+                records.iter().map(|r| Realisation { u: &r.u, y: &r.y, t0: r.t0, given: None }).collect();
+            let o = match diagnose::diagnose_drive(&recs, records[0].ts, &Thresholds::default()) {
+                Ok(o) => o,
+                Err(e) => return Ok((i, false, 0.0, format!("{} seed {seed}: no diagnosis: {e}", c.name()))),
+            };
+            let found: Vec<(Kind, Option<u32>, bool)> =
+                o.findings().iter().map(|f| (f.kind, f.order, f.kept)).collect();
+            let right = if truth.is_empty() {
+                found.is_empty()
+            } else {
+                truth.iter().all(|t| found.iter().any(|f| truth_named(t, f.0, f.1)))
+                    && found.first().is_some_and(|f| truth.iter().any(|t| truth_named(t, f.0, f.1)))
+            };
+            let gain = o.json()["gain_pct"].as_f64().unwrap_or(0.0);
+            let line = format!(
+                "{:>18} seed {seed:>5}: {:?} -> {:?}, gain {gain:5.1}% {}",
+                c.name(),
+                truth,
+                found,
+                if right { "right" } else { "WRONG" }
+            );
+            Ok((i, right, gain, line))
+        })
+        .collect();
+    let wall = start.elapsed().as_secs_f64();
+    let mut ok = vec![];
+    for r in results {
+        match r {
+            Ok(v) => ok.push(v),
+            Err(e) => {
+                eprintln!("diagnose_batch: {e}");
+                std::process::exit(1);
+            }
+        }
+    }
+    for (_, right, _, line) in &ok {
+        if a.verbose || !right {
+            println!("{line}");
+        }
+    }
+    println!(
+        "
+kind                right/drawn  median gain"
+    );
+    for (i, c) in cases.iter().enumerate() {
+        let of: Vec<_> = ok.iter().filter(|r| r.0 == i).collect();
+        let right = of.iter().filter(|r| r.1).count();
+        let mut gains: Vec<f64> = of.iter().map(|r| r.2).collect();
+        gains.sort_by(f64::total_cmp);
+        let median = gains.get(gains.len() / 2).copied().unwrap_or(0.0);
+        println!("{:<18} {right:>5}/{:<5}  {median:6.1}%", c.name(), of.len());
+    }
+    let right = ok.iter().filter(|r| r.1).count();
+    println!(
+        "all new kinds      {right:>5}/{:<5}  share {:.1}%   (seeds from {}, {wall:.0} s wall on {} threads)",
+        ok.len(),
+        100.0 * right as f64 / ok.len().max(1) as f64,
+        a.seed,
+        rayon::current_num_threads()
+    );
+}
+
+/// The kinds of `hidden` (see the module docs).
+fn old_kinds(a: &Args) {
     // Two clean entries: as many clean records as effect records of any one kind would make
     // clean cases a small minority; two draws of seeds keep them apart.
     let jobs: Vec<(Effect, u64)> = EFFECTS

@@ -1,9 +1,13 @@
-//! `boucwen diagnose DATA.csv [MORE.csv …] [--json] [--report DIR]`: what the extended model
-//! gets wrong on a record, the cause, the term that removes it and the gain (see
-//! [`boucwen_lab::diagnose`]). Several records run on all cores, one report (or one JSON
-//! line) per record in the order given.
+//! `boucwen diagnose DATA.csv [MORE.csv …] [--realisations] [--json] [--report DIR]`: what
+//! the extended model gets wrong on a record, the cause, the term that removes it and the
+//! gain (see [`boucwen_lab::diagnose`]; a sine drive, or a periodic or multisine drive, see
+//! [`boucwen_lab::periodic`]). Several records run on all cores, one report (or one JSON
+//! line) per record in the order given; with `--realisations` they are realisations of one
+//! periodic or multisine drive, diagnosed together.
 
 use crate::record_args::RecordArgs;
+use boucwen_lab::diagnose::Outcome;
+use boucwen_lab::periodic::Realisation;
 use boucwen_lab::record::Imported;
 use boucwen_lab::{diagnose, report};
 use rayon::prelude::*;
@@ -11,10 +15,14 @@ use std::path::{Path, PathBuf};
 
 #[derive(clap::Args)]
 pub struct DiagnoseArgs {
-    /// The records: t, u, y of a hysteretic actuator driven by a sine (see --columns and the
-    /// units for other layouts).
+    /// The records: t, u, y of a hysteretic actuator driven by a sine, a periodic waveform
+    /// (triangle, square) or a multisine (see --columns and the units for other layouts).
     #[arg(required = true)]
     data: Vec<PathBuf>,
+    /// The records are realisations of one periodic or multisine drive (the same lines, new
+    /// phases): one diagnosis, the models fitted on the first and tested on the others.
+    #[arg(long)]
+    realisations: bool,
     #[command(flatten)]
     record: RecordArgs,
     /// Print one JSON object per record (one line each) on stdout instead of the report.
@@ -33,11 +41,11 @@ fn one(a: &DiagnoseArgs, path: &Path, report_dir: Option<PathBuf>) -> Result<Str
     let r = &imported.record;
     r.validate_for_fit(diagnose::MIN_SAMPLES).map_err(|e| e.to_string())?;
     let given = a.record.window(r)?;
-    let d = diagnose::diagnose_record(&r.u, &r.y, r.ts, r.t0, given, &diagnose::Thresholds::default())
+    let rec = Realisation { u: &r.u, y: &r.y, t0: r.t0, given };
+    let d = diagnose::diagnose_drive(&[rec], r.ts, &diagnose::Thresholds::default())
         .map_err(|e| format!("{name}: {e}"))?;
     if let Some(dir) = &report_dir {
-        report::write_diagnosis(&d, d.analysed(&r.u), d.analysed(&r.y), &name, dir)
-            .map_err(|e| e.to_string())?;
+        write_report(&d, &r.u, &r.y, &name, dir)?;
     }
     Ok(if a.json {
         let mut j = d.json();
@@ -47,6 +55,55 @@ fn one(a: &DiagnoseArgs, path: &Path, report_dir: Option<PathBuf>) -> Result<Str
     } else {
         format!("read as {}\n{}", imported.info.describe(), d.summary(&name))
     })
+}
+
+fn write_report(d: &Outcome, u: &[f64], y: &[f64], name: &str, dir: &Path) -> Result<(), String> {
+    match d {
+        Outcome::Sine(d) => report::write_diagnosis(d, d.analysed(u), d.analysed(y), name, dir),
+        Outcome::Periodic(d) => report::write_periodic(d, name, dir),
+    }
+    .map(|_| ())
+    .map_err(|e| e.to_string())
+}
+
+/// The records as realisations of one drive: one diagnosis.
+fn together(a: &DiagnoseArgs) -> Result<(), String> {
+    let imported: Vec<Imported> = a.data.par_iter().map(|p| a.record.read(p)).collect::<Result<_, _>>()?;
+    let mut recs = vec![];
+    for (i, path) in imported.iter().zip(&a.data) {
+        let r = &i.record;
+        r.validate_for_fit(diagnose::MIN_SAMPLES).map_err(|e| e.to_string())?;
+        if (r.ts - imported[0].record.ts).abs() > 1e-6 * r.ts {
+            return Err(format!(
+                "{}: sampled every {} s, {} every {} s: realisations of one drive share the sample interval",
+                path.display(),
+                r.ts,
+                a.data[0].display(),
+                imported[0].record.ts
+            ));
+        }
+        recs.push(Realisation { u: &r.u, y: &r.y, t0: r.t0, given: a.record.window(r)? });
+    }
+    let names: Vec<String> = a.data.iter().map(|p| p.display().to_string()).collect();
+    let name = names.join(" + ");
+    let ts = imported[0].record.ts;
+    let d = diagnose::diagnose_drive(&recs, ts, &diagnose::Thresholds::default())
+        .map_err(|e| format!("{name}: {e}"))?;
+    if let Some(dir) = &a.report {
+        write_report(&d, recs[0].u, recs[0].y, &name, dir)?;
+    }
+    if a.json {
+        let mut j = d.json();
+        j["files"] = serde_json::json!(names);
+        j["import"] = serde_json::json!(imported.iter().map(import_json).collect::<Vec<_>>());
+        println!("{j}");
+    } else {
+        print!("{}", d.summary(&name));
+    }
+    if let Some(dir) = &a.report {
+        eprintln!("wrote {}", dir.join("index.html").display());
+    }
+    Ok(())
 }
 
 /// How the record was read, for the JSON.
@@ -67,6 +124,9 @@ pub fn import_json(i: &Imported) -> serde_json::Value {
 }
 
 pub fn run(a: DiagnoseArgs) -> Result<(), String> {
+    if a.realisations {
+        return together(&a);
+    }
     if let [path] = a.data.as_slice() {
         let out = one(&a, path, a.report.clone())?;
         print!("{out}");

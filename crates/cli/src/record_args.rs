@@ -44,6 +44,11 @@ impl RecordArgs {
         record::import(path, &opts).map_err(|e| e.to_string())
     }
 
+    /// Whether `--window` was given.
+    pub fn window_given(&self) -> bool {
+        self.window.is_some()
+    }
+
     /// `--window` in samples of `r`, checked against the record.
     pub fn window(&self, r: &record::Record) -> Result<Option<(usize, usize)>, String> {
         let Some(text) = &self.window else { return Ok(None) };

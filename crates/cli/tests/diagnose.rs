@@ -182,3 +182,67 @@ fn bad_records_are_one_line_errors_naming_file_and_row() {
     assert_eq!(o.status.code(), Some(1));
     assert!(String::from_utf8_lossy(&o.stderr).contains("--model enhanced"));
 }
+
+/// Two realisations of an odd random-phase multisine through an actuator with a hidden
+/// nonlinearity, diagnosed together with `--realisations`: the finding names the hidden
+/// parity, the held-out error is on the other realisation, and the page is written.
+#[test]
+fn realisations_of_a_multisine_are_diagnosed_together() {
+    use boucwen_lab::effects::{Nonlinearity, PeriodicCase, PeriodicDrive};
+    for (nl, want, avoid) in [
+        (Nonlinearity::Even, "even_distortion", "odd_distortion"),
+        (Nonlinearity::Odd, "odd_distortion", "even_distortion"),
+    ] {
+        let case = PeriodicCase::generate(PeriodicDrive::Multisine, nl, 1).unwrap();
+        let paths: Vec<String> = case
+            .records()
+            .unwrap()
+            .iter()
+            .enumerate()
+            .map(|(i, r)| {
+                let p = tmp(&format!("{}-r{}.csv", case.name(), i + 1));
+                r.write(&p).unwrap();
+                p.to_str().unwrap().to_string()
+            })
+            .collect();
+        assert_eq!(paths.len(), 2);
+        let dir = tmp(&format!("{}-report", case.name()));
+        let mut args = vec!["diagnose", "--realisations", "--json", "--report", dir.to_str().unwrap()];
+        args.extend(paths.iter().map(String::as_str));
+        let o = boucwen(&args);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let j: serde_json::Value = serde_json::from_slice(&o.stdout).expect("one JSON object");
+        assert_eq!(j["drive"]["kind"], "multisine", "{j}");
+        assert_eq!(j["realisations"], 2, "{j}");
+        assert_eq!(j["held_out"], "realisations", "{j}");
+        assert_eq!(j["files"].as_array().map(Vec::len), Some(2), "{j}");
+        let kinds: Vec<&str> =
+            j["findings"].as_array().unwrap().iter().filter_map(|f| f["kind"].as_str()).collect();
+        assert_eq!(kinds.first(), Some(&want), "{}: {j}", case.name());
+        assert!(!kinds.contains(&avoid), "{}: {j}", case.name());
+        for f in ["index.html", "diagnosis.json", "lines.svg"] {
+            assert!(dir.join(f).is_file(), "{f} not written");
+        }
+        // Without --realisations each record is its own diagnosis, one JSON line each.
+        let mut args = vec!["diagnose", "--json"];
+        args.extend(paths.iter().map(String::as_str));
+        let o = boucwen(&args);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let lines: Vec<serde_json::Value> =
+            String::from_utf8_lossy(&o.stdout).lines().map(|l| serde_json::from_str(l).unwrap()).collect();
+        assert_eq!(lines.len(), 2);
+        assert!(lines.iter().all(|l| l["held_out"] == "periods"), "{lines:?}");
+        // Realisations of one drive share the sample interval: another is one line.
+        let r2 = &case.records().unwrap()[1];
+        let slow =
+            boucwen_lab::record::Record::new("slow", 0.0, 2.0 * r2.ts, r2.u.clone(), r2.y.clone(), None)
+                .unwrap();
+        let p = tmp(&format!("{}-slow.csv", case.name()));
+        slow.write(&p).unwrap();
+        let o = boucwen(&["diagnose", "--realisations", &paths[0], p.to_str().unwrap()]);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(1), "{err}");
+        assert_eq!(err.trim_end().lines().count(), 1, "{err}");
+        assert!(err.contains("share the sample interval") && err.contains("-slow.csv"), "{err}");
+    }
+}

@@ -56,9 +56,11 @@
 //! gain the 50 % the batch asks for (see the README for the shares).
 
 use crate::analysis::{self, Tone};
+use crate::causes;
 use crate::fit::{self, Averaging, FitData, FitError, HostModel, ModelSpec, OeOptions};
 use crate::record::Y_LIMIT_UM;
 use crate::steady::{self, Drive, DriveKind, NoResponse, Window, WindowError};
+use crate::terms::{TermModel, Terms};
 use rayon::prelude::*;
 use std::f64::consts::TAU;
 
@@ -74,6 +76,17 @@ pub enum Kind {
     /// The drive explains less than [`MIN_FIT_PCT`] of the output: another input or a
     /// disturbance drives it.
     OtherInput,
+    /// The drive or the output is flattened at a level (an amplifier's rails, a sensor's
+    /// range).
+    Saturation,
+    /// A slow relaxation that follows the drive's history.
+    Creep,
+    /// The output answers the drive later than the model does.
+    InputDelay,
+    /// Odd nonlinear distortion under a periodic or multisine drive.
+    OddDistortion,
+    /// Even nonlinear distortion under a periodic or multisine drive.
+    EvenDistortion,
 }
 
 impl Kind {
@@ -84,6 +97,11 @@ impl Kind {
             Kind::EvenHarmonic => "even_harmonic",
             Kind::Drift => "drift",
             Kind::OtherInput => "other_input",
+            Kind::Saturation => "saturation",
+            Kind::Creep => "creep",
+            Kind::InputDelay => "input_delay",
+            Kind::OddDistortion => "odd_distortion",
+            Kind::EvenDistortion => "even_distortion",
         }
     }
 }
@@ -113,8 +131,15 @@ pub struct Finding {
     pub rms_with_term_um: f64,
     /// What the term carries in the extended model: the held-out RMS of the change of the
     /// model's output when the term is removed (µm; a drift line counted from its level in
-    /// the middle of the fitted half). Not kept: the RMS of the structure in the residual.
+    /// the middle of the fitted half; creep, which relaxes mostly before the held-out half,
+    /// over the whole run after the start-up, from its last level; an input delay, over the
+    /// start-up it was found on). Not kept: the RMS of the structure in the residual.
     pub term_rms_um: f64,
+    /// A level and its unit where one applies: a saturation's (V of the drive, or µm of the
+    /// output), an input delay's (samples), a distortion's (dB above the noise).
+    pub level: Option<(f64, &'static str)>,
+    /// The band (Hz) a distortion shows in.
+    pub band_hz: Option<[f64; 2]>,
 }
 
 /// Decision thresholds.
@@ -179,8 +204,13 @@ pub struct Diagnosis {
     pub findings: Vec<Finding>,
     /// Every term tried, round by round.
     pub trials: Vec<Trial>,
-    /// The extended model (the baseline if no term was kept).
+    /// The extended model's host (the baseline if no term was kept).
     pub model: HostModel,
+    /// The extended model's terms beyond its host (saturation, creep, delay).
+    pub terms: Terms,
+    /// The input delay the step onto the drive shows (see [`crate::causes::delay_scan`]),
+    /// when the record holds the step.
+    pub delay: Option<DelayEstimate>,
     /// Its held-out free-run RMS (µm).
     pub model_rms_um: f64,
     /// Its free run over the whole record (µm).
@@ -285,7 +315,122 @@ pub const RATCHET_REL: f64 = 0.05;
 /// explains too little of the output.
 pub const MIN_FIT_PCT: f64 = 50.0;
 
+/// One finding as JSON: `kind`, `order` (harmonics), `freq_hz`, `band_hz` (distortion),
+/// `level` and `level_unit` (where one applies), `residual_share`, `cause`, `kept`,
+/// `term_rms_um`.
+pub fn finding_json(f: &Finding) -> serde_json::Value {
+    use serde_json::json;
+    let mut o = json!({
+        "kind": f.kind.as_str(),
+        "freq_hz": f.freq_hz,
+        "residual_share": f.residual_share,
+        "cause": f.cause,
+        "kept": f.kept,
+        "term_rms_um": f.term_rms_um,
+    });
+    if let Some(n) = f.order {
+        o["order"] = json!(n);
+    }
+    if let Some((v, unit)) = f.level {
+        o["level"] = json!(v);
+        o["level_unit"] = json!(unit);
+    }
+    if let Some(b) = f.band_hz {
+        o["band_hz"] = json!(b);
+    }
+    o
+}
+
+/// A diagnosis of any drive (see [`diagnose_drive`]).
+#[derive(Clone, Debug)]
+pub enum Outcome {
+    /// A sine drive.
+    Sine(Box<Diagnosis>),
+    /// A periodic drive that is not a sine, or a multisine.
+    Periodic(Box<crate::periodic::PeriodicDiagnosis>),
+}
+
+impl Outcome {
+    /// The findings, most important first.
+    pub fn findings(&self) -> &[Finding] {
+        match self {
+            Outcome::Sine(d) => &d.findings,
+            Outcome::Periodic(d) => &d.findings,
+        }
+    }
+
+    /// The JSON object (see [`Diagnosis::json`] and
+    /// [`crate::periodic::PeriodicDiagnosis::json`]), with `analysis`: `sine` or `periodic`.
+    pub fn json(&self) -> serde_json::Value {
+        let (mut j, kind) = match self {
+            Outcome::Sine(d) => (d.json(), "sine"),
+            Outcome::Periodic(d) => (d.json(), "periodic"),
+        };
+        j["analysis"] = serde_json::json!(kind);
+        j
+    }
+
+    /// The terminal report.
+    pub fn summary(&self, source: &str) -> String {
+        match self {
+            Outcome::Sine(d) => d.summary(source),
+            Outcome::Periodic(d) => d.summary(source),
+        }
+    }
+}
+
+/// Diagnoses the records of one drive, choosing the analysis by the drive found in the first:
+/// a sine (one record: [`diagnose_record`]), or a periodic drive that is not a sine or a
+/// multisine (one record, or several realisations: [`crate::periodic::diagnose`]). A drive
+/// that does not repeat, or none, is one sentence.
+pub fn diagnose_drive(
+    records: &[crate::periodic::Realisation<'_>],
+    ts: f64,
+    th: &Thresholds,
+) -> Result<Outcome, DiagnoseError> {
+    let first = records.first().ok_or(DiagnoseError::Realisations("no record given".into()))?;
+    let n = first.u.len().min(first.y.len());
+    let (u, y) = (&first.u[..n], &first.y[..n]);
+    let (w, d) = steady::steady_window(u, y, ts, first.given).map_err(DiagnoseError::Window)?;
+    match d.kind {
+        DriveKind::None => Err(DiagnoseError::NoDrive { std_v: d.std_v }),
+        DriveKind::Sine if records.len() == 1 => {
+            diagnose_record(u, y, ts, first.t0, first.given, th).map(|d| Outcome::Sine(Box::new(d)))
+        }
+        DriveKind::Sine => Err(DiagnoseError::Realisations(format!(
+            "the drive is {}: a sine record is diagnosed on its own, not as one of several realisations (they are for \
+             multisines)",
+            d.describe()
+        ))),
+        DriveKind::Periodic | DriveKind::Multisine => {
+            crate::periodic::diagnose(records, ts, th).map(|d| Outcome::Periodic(Box::new(d)))
+        }
+        DriveKind::Aperiodic => {
+            steady::check_response(&u[w.start..w.end], &y[w.start..w.end], ts, &d)
+                .map_err(DiagnoseError::NoResponse)?;
+            Err(DiagnoseError::Aperiodic { drive: d.describe() })
+        }
+    }
+}
+
+/// The input delay a record's step onto the drive shows.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct DelayEstimate {
+    /// The delay (samples).
+    pub samples: f64,
+    /// RMS error over the start-up and the first periods of the model fitted there without
+    /// a delay (µm).
+    pub rms_without_um: f64,
+    /// The same with the delay (µm).
+    pub rms_with_um: f64,
+}
+
 impl Diagnosis {
+    /// The extended model's name, its terms included ("enhanced(3)+offset+saturation(u)").
+    pub fn model_name(&self) -> String {
+        TermModel { host: self.model.clone(), terms: self.terms.clone() }.name()
+    }
+
     /// `100·(1 - after/before)`.
     pub fn gain_pct(&self) -> f64 {
         if self.baseline_rms_um > 0.0 {
@@ -331,27 +476,10 @@ impl Diagnosis {
     /// and `resonance_hz` (null unless the record supports it) with `resonance_note`.
     pub fn json(&self) -> serde_json::Value {
         use serde_json::json;
-        let findings: Vec<serde_json::Value> = self
-            .findings
-            .iter()
-            .map(|f| {
-                let mut o = json!({
-                    "kind": f.kind.as_str(),
-                    "freq_hz": f.freq_hz,
-                    "residual_share": f.residual_share,
-                    "cause": f.cause,
-                    "kept": f.kept,
-                    "term_rms_um": f.term_rms_um,
-                });
-                if let Some(n) = f.order {
-                    o["order"] = json!(n);
-                }
-                o
-            })
-            .collect();
-        let model = |m: &HostModel, rms: f64, c: &ModelCheck| {
+        let findings: Vec<serde_json::Value> = self.findings.iter().map(finding_json).collect();
+        let model = |name: String, rms: f64, c: &ModelCheck| {
             let mut o = json!({
-                "model": m.name(),
+                "model": name,
                 "rms_um": if c.unstable.is_none() { json!(rms) } else { json!(null) },
                 "fit_pct": c.fit_pct,
                 "stable": c.unstable.is_none(),
@@ -391,9 +519,14 @@ impl Diagnosis {
             "periods": {"fitted": self.periods.0, "held_out": self.periods.1},
             "noise_um": self.noise_um.0,
             "noise_method": self.noise_um.1,
-            "baseline": model(&self.baseline, self.baseline_rms_um, &self.baseline_check),
+            "baseline": model(self.baseline.name(), self.baseline_rms_um, &self.baseline_check),
             "findings": findings,
-            "extended": model(&self.model, self.model_rms_um, &self.model_check),
+            "extended": model(self.model_name(), self.model_rms_um, &self.model_check),
+            "delay": self.delay.as_ref().map(|d| json!({
+                "samples": d.samples,
+                "startup_rms_without_um": d.rms_without_um,
+                "startup_rms_with_um": d.rms_with_um,
+            })),
             "gain_pct": self.gain_pct(),
             "not_kept": self.not_kept().into_iter().map(|t| {
                 let mut o = json!({
@@ -532,10 +665,21 @@ impl Diagnosis {
                 );
             }
         }
+        if let Some(d) = &self.delay {
+            let _ = writeln!(
+                s,
+                "\nthe output answers the step onto the drive {:.1} samples ({:.2} ms) late (the model fitted over the \
+                 start-up: {:.4} µm without a delay, {:.4} µm with it)",
+                d.samples,
+                1e3 * d.samples * self.ts,
+                d.rms_without_um,
+                d.rms_with_um
+            );
+        }
         let _ = writeln!(
             s,
             "\nextended model: {} (free run): held-out RMS {:.4} µm, {}; {:.4} µm before: {:.1}% lower{}",
-            self.model.name(),
+            self.model_name(),
             self.model_rms_um,
             fit(&self.model_check),
             self.baseline_rms_um,
@@ -567,11 +711,23 @@ pub enum DiagnoseError {
         /// Standard deviation of `u` (V).
         std_v: f64,
     },
-    /// The drive is not a sine (the other kinds are not diagnosed yet).
+    /// The drive is not a sine (for the sine analysis: [`diagnose_record`]).
     NotSine {
         /// The drive, described.
         drive: String,
     },
+    /// The drive does not repeat (a chirp, noise): distortion cannot be told from noise.
+    Aperiodic {
+        /// The drive, described.
+        drive: String,
+    },
+    /// The drive is a sine or none (for the periodic analysis: [`crate::periodic`]).
+    NotPeriodic {
+        /// The drive, described.
+        drive: String,
+    },
+    /// The records given as realisations of one drive are not.
+    Realisations(String),
     /// No steady window, or `--window` outside the record.
     Window(WindowError),
     /// The output does not respond.
@@ -630,9 +786,19 @@ impl std::fmt::Display for DiagnoseError {
             ),
             DiagnoseError::NotSine { drive } => write!(
                 f,
-                "the drive is {drive}; diagnose analyses sine drives only for now (boucwen identify fits a model to \
-                 any drive)"
+                "the drive is {drive}; the sine analysis takes a sine drive (a periodic or multisine drive has its own \
+                 analysis, boucwen diagnose chooses it)"
             ),
+            DiagnoseError::Aperiodic { drive } => write!(
+                f,
+                "the drive is {drive}; diagnose needs a drive that repeats (a sine, a triangle or square, a multisine) \
+                 to tell distortion from noise over whole periods (boucwen identify fits a model to any drive)"
+            ),
+            DiagnoseError::NotPeriodic { drive } => write!(
+                f,
+                "the drive is {drive}; the periodic analysis takes a periodic drive that is not a sine, or a multisine"
+            ),
+            DiagnoseError::Realisations(why) => write!(f, "{why}"),
             DiagnoseError::Window(e) => write!(f, "{e}"),
             DiagnoseError::NoResponse(e) => write!(f, "{e}"),
             DiagnoseError::TooFewPeriods { drive_hz, periods, window_s } => write!(
@@ -771,6 +937,9 @@ pub struct Candidate {
     /// to cancel what its loop does elsewhere, a branch that carries much in the model but
     /// stands for little in the record.
     pub evidence_um: f64,
+    /// A saturation of the output: the range `[lo, hi]` (µm) its plateaus show (`None`: of
+    /// the drive, or not a saturation).
+    pub output_range: Option<[f64; 2]>,
 }
 
 /// One term tried in one round of the forward selection.
@@ -1036,6 +1205,8 @@ fn diagnose_from(
         findings: vec![],
         trials: vec![],
         model: baseline.clone(),
+        terms: Terms::default(),
+        delay: None,
         model_rms_um: baseline_rms_um,
         model_sim: baseline_sim.clone(),
         model_residual: residual.clone(),
@@ -1069,6 +1240,8 @@ fn diagnose_from(
             kept: false,
             rms_with_term_um: f64::NAN,
             term_rms_um: residual.rms_um,
+            level: None,
+            band_hz: None,
         };
         let note =
             "the structure's resonance is not reported: the model explains too little of the output".into();
@@ -1096,7 +1269,11 @@ fn diagnose_from(
     // scale with the drive, DRIFT_NOISE_FACTOR times the residual's noise if that is less.
     let min_term = |c: &Candidate| {
         let t = th.min_term_rel * out_rms;
-        if c.kind == Kind::Drift { t.min(DRIFT_NOISE_FACTOR * residual.noise_rms_um) } else { t }
+        if matches!(c.kind, Kind::Drift | Kind::Creep) {
+            t.min(DRIFT_NOISE_FACTOR * residual.noise_rms_um)
+        } else {
+            t
+        }
     };
     // Forward selection of terms.
     // A trend is a candidate by the same measure as a term: `min_candidate_rel` of the output,
@@ -1105,21 +1282,23 @@ fn diagnose_from(
     let floor = th.min_candidate_rel * out_rms;
     let drift_floor = floor.min(DRIFT_NOISE_FACTOR * residual.noise_rms_um);
     let mut remaining = candidates(&residual, &evidence, drive_hz, ts, floor, drift_floor);
-    let mut model = baseline.clone();
+    let steady_y = &y[(plan.window.start - plan.window.drive_on).min(y.len())..];
+    let drive_amp = plan.drive.harmonics.first().map_or(0.0, |t| t.amp);
+    remaining.extend(causes::candidates(&residual, &out_harmonics, steady_y, noise_um.0, (u, drive_amp)));
+    let mut model = TermModel::from(baseline.clone());
     let mut model_rms = baseline_rms_um;
     let mut kept: Vec<(Candidate, f64, f64)> = vec![];
     let mut trials = vec![];
     for round in 0.. {
         // Every term, refitted with a search over structures and loop shapes and from the
         // current model (in parallel).
-        let tried: Vec<(usize, HostModel, f64, f64)> = remaining
+        let tried: Vec<(usize, TermModel, f64, f64)> = remaining
             .par_iter()
             .enumerate()
             .filter_map(|(i, c)| {
-                let spec = with_term(&model, c, ts)?;
-                let m = fit::fit_oe_on(&data, &spec, std::slice::from_ref(&model), &opt).ok()?.model;
+                let m = try_term(&model, c, &data, u, y, ts, split, &opt)?;
                 let sim = m.simulate(u, ts).ok()?;
-                if instability(m.ext.ar, &sim, ts).is_some() {
+                if instability(m.host.ext.ar, &sim, ts).is_some() {
                     return None;
                 }
                 let rms = analysis::rms_diff(&sim[split..], &y[split..]);
@@ -1137,14 +1316,35 @@ fn diagnose_from(
             kept: false,
             reason: None,
         }));
-        // Of the terms that would be kept, the one with the most evidence in the record.
-        let gains = |t: &(usize, HostModel, f64, f64)| t.2 <= model_rms * (1.0 - th.min_gain);
-        let winner = tried
+        // Of the harmonic and drift terms that would be kept, the one with the most evidence
+        // in the record; a saturation or creep term that would be kept replaces it when it
+        // lowers the held-out RMS further (a clamped drive explains a whole series of
+        // harmonics, creep a trend that is not a line).
+        let gains = |t: &(usize, TermModel, f64, f64)| t.2 <= model_rms * (1.0 - th.min_gain);
+        let qualifies = |t: &(usize, TermModel, f64, f64)| gains(t) && t.3 >= min_term(&remaining[t.0]);
+        let physical = |c: &Candidate| matches!(c.kind, Kind::Saturation | Kind::Creep);
+        let by_evidence = tried
             .iter()
             .enumerate()
-            .filter(|(_, t)| gains(t) && t.3 >= min_term(&remaining[t.0]))
+            .filter(|(_, t)| qualifies(t) && !physical(&remaining[t.0]))
             .max_by(|a, b| remaining[a.1.0].evidence_um.total_cmp(&remaining[b.1.0].evidence_um))
             .map(|(pos, _)| pos);
+        // An output that sits on plateaus is clipped where it is measured: its clamp, when it
+        // qualifies, goes before a clamp of the drive (which the structure would smooth).
+        let plateau = |c: &Candidate| c.output_range.is_some();
+        let by_rms = tried
+            .iter()
+            .enumerate()
+            .filter(|(_, t)| qualifies(t) && physical(&remaining[t.0]))
+            .min_by(|a, b| {
+                plateau(&remaining[b.1.0]).cmp(&plateau(&remaining[a.1.0])).then(a.1.2.total_cmp(&b.1.2))
+            })
+            .map(|(pos, _)| pos);
+        let winner = match (by_evidence, by_rms) {
+            (Some(e), Some(r)) if tried[r].2 < tried[e].2 => Some(r),
+            (Some(e), _) => Some(e),
+            (None, r) => r,
+        };
         // Why each term that gained enough is not kept this round.
         for (pos, t) in tried.iter().enumerate() {
             if !gains(t) || Some(pos) == winner {
@@ -1158,7 +1358,7 @@ fn diagnose_from(
                      of the output's fundamental RMS{})",
                     t.3,
                     100.0 * th.min_term_rel,
-                    if c.kind == Kind::Drift {
+                    if matches!(c.kind, Kind::Drift | Kind::Creep) {
                         format!(", or {DRIFT_NOISE_FACTOR} times the residual's noise")
                     } else {
                         String::new()
@@ -1166,12 +1366,23 @@ fn diagnose_from(
                 )
             } else if let Some(w) = winner {
                 let wc = &remaining[tried[w].0];
-                format!(
-                    "the {} had more evidence in the record ({:.4} µm against {:.4} µm) and was kept in round {round}",
-                    describe_term(wc),
-                    wc.evidence_um,
-                    c.evidence_um
-                )
+                if physical(wc) || physical(c) {
+                    format!(
+                        "the {} lowered the held-out RMS further ({:.4} µm against {:.4} µm) and was kept in round \
+                         {round}",
+                        describe_term(wc),
+                        tried[w].2,
+                        t.2
+                    )
+                } else {
+                    format!(
+                        "the {} had more evidence in the record ({:.4} µm against {:.4} µm) and was kept in round \
+                         {round}",
+                        describe_term(wc),
+                        wc.evidence_um,
+                        c.evidence_um
+                    )
+                }
             } else {
                 continue;
             };
@@ -1182,7 +1393,7 @@ fn diagnose_from(
         };
         let (i, m, rms, term) = tried.into_iter().nth(pos).expect("the winner is one of the trials");
         if round == 0 && depth < MAX_BASELINE_REFITS {
-            let stripped = without(&m, &remaining[i]);
+            let stripped = without(&m, &remaining[i]).host;
             let refit = fit::fit_oe_on(&data, &spec, &[stripped], &opt).map(|f| f.model);
             if let Ok(b) = refit {
                 if fit::free_run_rms(&b, u, y, ts, split)
@@ -1197,9 +1408,64 @@ fn diagnose_from(
         model = m;
         model_rms = rms;
     }
+    // The delay, from the step onto the drive: a record that holds the step (an idle part
+    // before it, or a drive starting from 0 V) and a start-up after it.
+    let holds_step = plan.window.start > plan.window.drive_on
+        && (plan.window.drive_on > 0 || u.first().is_some_and(|u0| u0.abs() <= STEP_FROM_REST * drive_amp));
+    let mut delay = None;
+    let mut delay_finding = None;
+    if holds_step {
+        if let Some(scan) = causes::delay_scan(&model, &causes::spec_of(&model.host), u, y, ts, split, &opt) {
+            let est = DelayEstimate {
+                samples: scan.samples,
+                rms_without_um: scan.rms_without_um,
+                rms_with_um: scan.rms_with_um,
+            };
+            delay = Some(est);
+            let gain = 1.0 - scan.rms_with_um / scan.rms_without_um.max(1e-300);
+            if scan.samples >= causes::MIN_DELAY_SAMPLES && gain >= th.min_gain {
+                // The extended model with the delay, fitted on the usual criterion; kept if its
+                // held-out error is no worse than without.
+                let mut dm = model.clone();
+                dm.terms.extra_delay = scan.model.terms.extra_delay;
+                dm.host.delay = scan.model.host.delay;
+                let with = causes::fit_host(&dm, &causes::spec_of(&dm.host), u, y, ts, split, &opt)
+                    .ok()
+                    .and_then(|(m, _)| {
+                        let sim = m.simulate(u, ts).ok()?;
+                        let r = analysis::rms_diff(&sim[split..], &y[split..]);
+                        (instability(m.host.ext.ar, &sim, ts).is_none() && r.is_finite()).then_some((m, r))
+                    });
+                let kept_delay =
+                    with.as_ref().is_some_and(|(_, r)| *r <= model_rms * causes::DELAY_HELD_OUT_SLACK);
+                let held_out_before = model_rms;
+                if let (true, Some((m, r))) = (kept_delay, with) {
+                    model = m;
+                    model_rms = r;
+                }
+                let before = scan.rms_without_um;
+                delay_finding = Some(Finding {
+                    kind: Kind::InputDelay,
+                    order: None,
+                    freq_hz: 0.0,
+                    residual_share: ((before * before - scan.rms_with_um * scan.rms_with_um)
+                        / (before * before).max(1e-300))
+                    .clamp(0.0, 1.0),
+                    amplitude_um: scan.change_rms_um,
+                    output_rel: 0.0,
+                    cause: causes::explain_delay(&scan, ts, held_out_before, kept_delay.then_some(model_rms)),
+                    kept: kept_delay,
+                    rms_with_term_um: if kept_delay { model_rms } else { f64::NAN },
+                    term_rms_um: scan.change_rms_um,
+                    level: Some((scan.samples, "samples")),
+                    band_hz: None,
+                });
+            }
+        }
+    }
     let model_sim = model.simulate(u, ts)?;
     let model_residual = decompose(&held_out(&model_sim), drive_hz, ts);
-    let final_res = resonance_hz(model.ext.ar, ts);
+    let final_res = resonance_hz(model.host.ext.ar, ts);
     // Importance: what each term carries in the final model.
     let mut findings: Vec<Finding> = vec![];
     let mut prev_rms = baseline_rms_um;
@@ -1208,35 +1474,56 @@ fn diagnose_from(
         let explained = (prev_rms * prev_rms - rms * rms) / (baseline_rms_um * baseline_rms_um).max(1e-300);
         let step = Step { before_um: prev_rms, after_um: rms, first: i == 0 };
         prev_rms = rms;
+        let (cause, level) = match c.kind {
+            Kind::Saturation => causes::explain_saturation(
+                &model.terms,
+                &c,
+                &step.describe(&describe_term(&c)),
+                &out_harmonics,
+                steady_y,
+                noise_um.0,
+            ),
+            Kind::Creep => {
+                (causes::explain_creep(&model.terms, &residual, &step.describe("creep states")), None)
+            }
+            _ => (
+                explain(
+                    &c,
+                    step,
+                    &out_harmonics,
+                    output_amplitude_um,
+                    &[final_res, res_hz],
+                    &residual,
+                    (
+                        plan.drive.harmonic_rel(c.order.unwrap_or(0) as usize),
+                        drive_part.get(c.order.unwrap_or(1) as usize - 1).map_or(0.0, |t| t.amp),
+                    ),
+                ),
+                None,
+            ),
+        };
         findings.push(Finding {
             kind: c.kind,
             order: c.order,
             freq_hz: c.freq_hz,
             residual_share: explained.clamp(0.0, 1.0),
             amplitude_um: c.amp,
-            cause: explain(
-                &c,
-                step,
-                &out_harmonics,
-                output_amplitude_um,
-                &[final_res, res_hz],
-                &residual,
-                (
-                    plan.drive.harmonic_rel(c.order.unwrap_or(0) as usize),
-                    drive_part.get(c.order.unwrap_or(1) as usize - 1).map_or(0.0, |t| t.amp),
-                ),
-            ),
+            cause,
             rms_with_term_um: rms,
             term_rms_um: term,
             output_rel: out_harmonics
                 .get(c.order.map_or(usize::MAX, |o| o as usize - 1))
                 .map_or(0.0, |t| t.amp / output_amplitude_um.max(1e-300)),
             kept: true,
+            level,
+            band_hz: None,
         });
     }
-    // Kept terms were chosen by their evidence, most first.
+    // Kept terms were chosen by their evidence, most first; the delay, found on the
+    // start-up, after them.
+    findings.extend(delay_finding);
     findings.extend(unexplained(&model_residual, &kept, &out_harmonics, output_amplitude_um, th));
-    let model_check = ModelCheck::of(&model, &model_sim[split..], &y[split..], ts);
+    let model_check = ModelCheck::of(&model.host, &model_sim[split..], &y[split..], ts);
     let (resonance_hz, resonance_note) =
         resonance_support(res_hz, drive_hz, &out_harmonics, output_amplitude_um, &residual);
     Ok(Diagnosis {
@@ -1244,13 +1531,55 @@ fn diagnose_from(
         resonance_note,
         findings,
         trials,
-        model,
+        model: model.host,
+        terms: model.terms,
+        delay,
         model_rms_um: model_rms,
         model_sim,
         model_residual,
         model_check,
         ..base
     })
+}
+
+/// A drive that starts within this fraction of its amplitude from 0 V starts from rest: its
+/// first samples are the step onto the drive.
+pub const STEP_FROM_REST: f64 = 0.05;
+
+/// Fits the candidate's term onto `model` (see [`crate::causes`]): a harmonic branch or a
+/// drift line by [`fit::fit_oe_on`] (on the record prepared as `data`, or on the input as the
+/// model's terms transform it), or by a joint refinement when the model has terms inside or
+/// after it; a saturation or creep by its own fit.
+#[allow(clippy::too_many_arguments)]
+fn try_term(
+    model: &TermModel,
+    c: &Candidate,
+    data: &FitData<'_>,
+    u: &[f64],
+    y: &[f64],
+    ts: f64,
+    split: usize,
+    opt: &OeOptions,
+) -> Option<TermModel> {
+    match c.kind {
+        Kind::Saturation => match c.output_range {
+            Some(range) => causes::fit_output_clamp(model, range, u, y, ts, split, opt),
+            None => causes::fit_input_clamp(model, &causes::spec_of(&model.host), u, y, ts, split, opt),
+        },
+        Kind::Creep => causes::fit_creep(model, u, y, ts, split, opt),
+        Kind::OddHarmonic | Kind::EvenHarmonic | Kind::Drift => {
+            let spec = with_term(&model.host, c, ts)?;
+            if model.terms.is_empty() {
+                let f = fit::fit_oe_on(data, &spec, std::slice::from_ref(&model.host), opt).ok()?;
+                Some(TermModel::from(f.model))
+            } else if model.terms.input_only() {
+                causes::fit_host(model, &spec, u, y, ts, split, opt).ok().map(|r| r.0)
+            } else {
+                causes::refine_with(model, &spec, u, y, ts, split, opt)
+            }
+        }
+        Kind::OtherInput | Kind::InputDelay | Kind::OddDistortion | Kind::EvenDistortion => None,
+    }
 }
 
 /// The output's harmonics (µm, phases from sample `split`) that the drive's own harmonics
@@ -1290,10 +1619,13 @@ fn drive_harmonic_part(
 /// distortion measured on a pure sine is about 10⁻⁴ (the drive frequency is estimated).
 pub const DRIVE_DISTORTION_FLOOR: f64 = 2e-3;
 
-/// "3rd harmonic branch", "drift line".
+/// "3rd harmonic branch", "drift line", "clamp of the drive".
 fn describe_term(c: &Candidate) -> String {
     match (c.kind, c.order) {
         (Kind::Drift, _) => "drift line".into(),
+        (Kind::Saturation, _) if c.output_range.is_some() => "clamp of the output".into(),
+        (Kind::Saturation, _) => "clamp of the drive".into(),
+        (Kind::Creep, _) => "creep states".into(),
         (_, Some(n)) => format!("{} harmonic branch", ordinal(n)),
         _ => "term".into(),
     }
@@ -1361,7 +1693,11 @@ fn unexplained(
 ) -> Vec<Finding> {
     let power = (r.rms_um * r.rms_um).max(1e-300);
     let floor = th.min_term_rel * out_amp / std::f64::consts::SQRT_2;
-    let is_kept = |order: Option<u32>| kept.iter().any(|(c, ..)| c.order == order);
+    let is_kept = |order: Option<u32>| match order {
+        Some(_) => kept.iter().any(|(c, ..)| c.order == order),
+        // The trend: a drift line or creep removed it.
+        None => kept.iter().any(|(c, ..)| matches!(c.kind, Kind::Drift | Kind::Creep)),
+    };
     let mut found = vec![];
     for (i, h) in r.harmonics.iter().enumerate().skip(1).take(MAX_TERM_ORDER as usize - 1) {
         let order = (i + 1) as u32;
@@ -1389,6 +1725,8 @@ fn unexplained(
             kept: false,
             rms_with_term_um: f64::NAN,
             term_rms_um: rms,
+            level: None,
+            band_hz: None,
         });
     }
     let share = r.trend_rms_um.powi(2) / power;
@@ -1410,6 +1748,8 @@ fn unexplained(
             kept: false,
             rms_with_term_um: f64::NAN,
             term_rms_um: r.trend_rms_um,
+            level: None,
+            band_hz: None,
         });
     }
     found.sort_by(|a, b| b.term_rms_um.total_cmp(&a.term_rms_um));
@@ -1448,6 +1788,7 @@ fn candidates(
                 share: h.amp * h.amp / 2.0 / power,
                 amp: h.amp,
                 evidence_um: out.get(i).map_or(0.0, rms),
+                output_range: None,
             }
         })
         .filter(|c| c.order.is_some_and(|o| o <= MAX_TERM_ORDER && o as f64 * drive_hz < 0.5 / ts))
@@ -1460,6 +1801,7 @@ fn candidates(
             share: r.trend_rms_um.powi(2) / power,
             amp: r.trend_rms_um,
             evidence_um: r.trend_rms_um,
+            output_range: None,
         });
     }
     c
@@ -1467,10 +1809,17 @@ fn candidates(
 
 /// The held-out RMS (µm) of what the term of `c` carries in `model`: the change of its free
 /// run when the term is removed.
-fn term_rms(model: &HostModel, c: &Candidate, u: &[f64], ts: f64, split: usize) -> Result<f64, FitError> {
+fn term_rms(model: &TermModel, c: &Candidate, u: &[f64], ts: f64, split: usize) -> Result<f64, FitError> {
     let a = model.simulate(u, ts)?;
     let b = without(model, c).simulate(u, ts)?;
     let d: Vec<f64> = a.iter().zip(&b).map(|(x, y)| x - y).collect();
+    if c.kind == Kind::Creep {
+        // Creep relaxes mostly before the held-out half: what it carries is its relaxation
+        // towards its last level over the whole run after the start-up.
+        let last = d.last().copied().unwrap_or(0.0);
+        let from = (split / 5).min(d.len());
+        return Ok(analysis::rms(&d[from..].iter().map(|v| v - last).collect::<Vec<_>>()));
+    }
     // A drift line's level is traded against the loop's offset: count its change from the
     // middle of the fitted half.
     let level = if c.kind == Kind::Drift { d[split / 2] } else { 0.0 };
@@ -1478,12 +1827,15 @@ fn term_rms(model: &HostModel, c: &Candidate, u: &[f64], ts: f64, split: usize) 
 }
 
 /// `model` without the candidate's term.
-fn without(model: &HostModel, c: &Candidate) -> HostModel {
+fn without(model: &TermModel, c: &Candidate) -> TermModel {
     let mut m = model.clone();
     match c.kind {
         // The offset stays; the drift is the rest of the polynomial.
-        Kind::Drift => m.drift.truncate(1),
-        _ => m.branches.retain(|b| Some(b.order) != c.order),
+        Kind::Drift => m.host.drift.truncate(1),
+        Kind::Saturation if c.output_range.is_some() => m.terms.output_clamp = None,
+        Kind::Saturation => m.terms.input_clamp = None,
+        Kind::Creep => m.terms.creep.clear(),
+        _ => m.host.branches.retain(|b| Some(b.order) != c.order),
     }
     m
 }
@@ -1607,6 +1959,9 @@ fn explain(
             step.describe("a drift line")
         ),
         Kind::OtherInput => "another input drives the output".into(),
+        Kind::Saturation | Kind::Creep | Kind::InputDelay | Kind::OddDistortion | Kind::EvenDistortion => {
+            format!("{}: {}", c.kind.as_str(), step.describe(&describe_term(c)))
+        }
     }
 }
 

@@ -1,9 +1,11 @@
 //! Files the commands write: a sweep's `sweep.csv` and SVG figures in the manner of the
 //! paper's Figs. 6, 10, 11, 13, 16 and 17; a diagnosis' page (`index.html`, its JSON and SVG
-//! figures of the residual spectrum, the loops and the time series before and after).
+//! figures of the residual spectrum, the loops and the time series before and after), or for
+//! a periodic or multisine drive the output at the lines of whole periods.
 
 use crate::analysis;
 use crate::diagnose::Diagnosis;
+use crate::periodic::PeriodicDiagnosis;
 use crate::plot::{Chart, Series};
 use crate::record::{RecordError, write_atomic};
 use crate::sweep::{SweepResult, Traces};
@@ -88,13 +90,35 @@ fn col(result: &SweepResult, f: impl Fn(&crate::sweep::Row) -> f64) -> Vec<f64> 
 
 /// Fig. 10: held-out free-run RMS modelling error against frequency.
 pub fn modelling_error(r: &SweepResult) -> Chart {
-    let x = col(r, |w| w.freq_hz);
+    modelling_error_rows(&r.rows)
+}
+
+/// Fig. 10 from the rows of a sweep, simulated or measured.
+pub fn modelling_error_rows(rows: &[crate::sweep::Row]) -> Chart {
+    let col = |f: fn(&crate::sweep::Row) -> f64| -> Vec<f64> { rows.iter().map(f).collect() };
+    let x = col(|w| w.freq_hz);
     Chart::new("Modelling error (free run, held-out half)", "drive frequency (Hz)", "RMS error (µm)")
-        .with(Series::line("extended, OE fit", x.clone(), col(r, |w| w.rms_extended_oe_um), 0).points())
-        .with(Series::line("enhanced, OE fit", x.clone(), col(r, |w| w.rms_enhanced_oe_um), 1).points())
-        .with(Series::line("extended, paper RLS", x.clone(), col(r, |w| w.rms_extended_um), 2).dashed())
-        .with(Series::line("enhanced, paper RLS", x, col(r, |w| w.rms_enhanced_um), 3).dashed())
+        .with(Series::line("extended, OE fit", x.clone(), col(|w| w.rms_extended_oe_um), 0).points())
+        .with(Series::line("enhanced, OE fit", x.clone(), col(|w| w.rms_enhanced_oe_um), 1).points())
+        .with(Series::line("extended, paper RLS", x.clone(), col(|w| w.rms_extended_um), 2).dashed())
+        .with(Series::line("enhanced, paper RLS", x, col(|w| w.rms_enhanced_um), 3).dashed())
         .log_y()
+}
+
+/// Writes the files of `boucwen sweep --measured` into `dir`: `sweep.csv` (the columns of
+/// the simulated sweep; the tracking columns `nan`: they need the actuator),
+/// `modelling_error.svg` (Fig. 10), `summary.txt` (what changes with frequency, the records
+/// skipped and why) and `sweep.json`. Returns the files written.
+pub fn write_measured_sweep(
+    m: &crate::sweep_measured::MeasuredSweep,
+    dir: &Path,
+) -> Result<Vec<PathBuf>, ReportError> {
+    let mut out = Output::new(dir)?;
+    out.put("sweep.csv", m.csv())?;
+    out.put("modelling_error.svg", modelling_error_rows(&m.rows()).to_svg())?;
+    out.put("summary.txt", m.summary())?;
+    out.put("sweep.json", format!("{:#}\n", m.json()))?;
+    Ok(out.written)
 }
 
 /// Fig. 16: tracking RMSE against frequency.
@@ -270,4 +294,52 @@ pub fn diagnosis_residual(d: &Diagnosis, y: &[f64]) -> Chart {
             held_out_error(y, &d.model_sim, d.split),
             1,
         ))
+}
+
+/// Writes the page of a periodic or multisine diagnosis into `dir`: `index.html` (the
+/// terminal report and the figures), `diagnosis.json`, `lines.svg` (the output at the
+/// excited lines, the odd lines left out and the even lines, with the noise, for the first
+/// realisation). Returns the files written.
+pub fn write_periodic(d: &PeriodicDiagnosis, source: &str, dir: &Path) -> Result<Vec<PathBuf>, ReportError> {
+    let mut out = Output::new(dir)?;
+    let figures = [("lines.svg", periodic_lines(d).to_svg())];
+    let mut html = format!(
+        "<!doctype html>\n<html><head><meta charset=\"utf-8\"><title>boucwen diagnose: {0}</title>\
+         <style>body{{font-family:sans-serif;max-width:980px;margin:2em auto}}pre{{background:#f6f6f6;\
+         padding:1em;white-space:pre-wrap}}img{{max-width:100%}}</style></head><body>\n\
+         <h1>Diagnosis of {0}</h1>\n<pre>{1}</pre>\n",
+        html_escape(source),
+        html_escape(&d.summary(source))
+    );
+    for (name, svg) in figures {
+        html.push_str(&format!("<p><img src=\"{name}\" alt=\"{name}\"></p>\n"));
+        out.put(name, svg)?;
+    }
+    html.push_str("</body></html>\n");
+    out.put("diagnosis.json", format!("{:#}\n", d.json()))?;
+    out.put("index.html", html)?;
+    Ok(out.written)
+}
+
+/// The output's lines (first realisation): excited, odd left out, even, and the noise of the
+/// mean at each line.
+pub fn periodic_lines(d: &PeriodicDiagnosis) -> Chart {
+    let l = &d.lines[0];
+    let pick = |f: &dyn Fn(&crate::distortion::Line) -> bool| -> (Vec<f64>, Vec<f64>) {
+        l.lines.iter().filter(|x| f(x)).map(|x| (x.freq_hz, x.y.norm().max(1e-9))).unzip()
+    };
+    let (fe, ae) = pick(&|x| x.excited);
+    let (fo, ao) = pick(&|x| !x.excited && x.k % 2 == 1);
+    let (fv, av) = pick(&|x| !x.excited && x.k % 2 == 0);
+    let (fn_, an): (Vec<f64>, Vec<f64>) =
+        l.lines.iter().map(|x| (x.freq_hz, x.noise_var.sqrt().max(1e-9))).unzip();
+    let top = l.lines.iter().filter(|x| x.excited).map(|x| x.freq_hz).fold(0.0, f64::max) * 3.0;
+    let mut c = Chart::new("Output at the lines of whole periods", "frequency (Hz)", "amplitude (µm)")
+        .with(Series::line("excited lines", fe, ae, 0).scatter())
+        .with(Series::line("odd lines not excited", fo, ao, 1).scatter())
+        .with(Series::line("even lines", fv, av, 2).scatter())
+        .with(Series::line("noise (std of the mean)", fn_, an, 7).dashed())
+        .log_y();
+    c.x_range = Some((0.0, top.min(0.5 / d.ts).max(l.f0_hz)));
+    c
 }

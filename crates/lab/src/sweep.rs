@@ -129,16 +129,49 @@ pub struct Structure {
     pub resonance_hz: Option<f64>,
 }
 
-/// Identifies the structure from a multisine record on a fresh actuator.
-pub fn identify_structure(scenario: &Scenario, drive_amplitude: f64) -> Result<Structure, SweepError> {
+/// A record's input (V) and output (µm).
+pub type InOut = (Vec<f64>, Vec<f64>);
+
+/// The two records the structure is identified from, on a fresh actuator: the broadband
+/// multisine `(u, y)` ([`STRUCTURE_SECONDS`], peak [`STRUCTURE_AMPLITUDE`] of the drive
+/// amplitude) and the quasi-static loop `(u, y)` ([`LOOP_HZ`], [`LOOP_SECONDS`], at the drive
+/// amplitude). `boucwen sweep --measured` takes records like these from disk.
+pub fn structure_records(scenario: &Scenario, drive_amplitude: f64) -> Result<[InOut; 2], SweepError> {
     let ts = scenario.sampling.ts_s;
-    let err = |e| SweepError::Fit(0.0, e);
     let seed = scenario.seed.wrapping_mul(1_000_003).wrapping_sub(1);
     // Structure and delay: a small broadband record, where the actuator is nearly linear.
     let n = (STRUCTURE_SECONDS / ts).round() as usize;
     let u =
         experiment::multisine(STRUCTURE_AMPLITUDE * drive_amplitude, 1.0, (0.2 / ts).min(200.0), 40, ts, n);
     let y = Bimorph::new(&scenario.clone().with_seed(seed))?.run(&u)?;
+    let n_loop = (LOOP_SECONDS / ts).round() as usize;
+    let u_loop =
+        experiment::sine(drive_amplitude, LOOP_HZ, ts, n_loop).map_err(|e| SweepError::Core(LOOP_HZ, e))?;
+    let y_loop = Bimorph::new(&scenario.clone().with_seed(seed.wrapping_sub(1)))?.run(&u_loop)?;
+    Ok([(u, y), (u_loop, y_loop)])
+}
+
+/// Identifies the structure from a multisine record on a fresh actuator.
+pub fn identify_structure(scenario: &Scenario, drive_amplitude: f64) -> Result<Structure, SweepError> {
+    let [(u, y), (u_loop, y_loop)] = structure_records(scenario, drive_amplitude)?;
+    let ts = scenario.sampling.ts_s;
+    structure_from(&u, &y, &u_loop, &y_loop, LOOP_HZ, u_loop.len(), ts)
+}
+
+/// The structure from a broadband record `(u, y)` (the extended model fitted by output error
+/// with a linear loop: its AR part and delay) and the loop shape from a sine record
+/// `(u_loop, y_loop)` at `loop_hz`, fitted on its first `loop_fit` samples with that
+/// structure and delay. Both records start with the drive.
+pub fn structure_from(
+    u: &[f64],
+    y: &[f64],
+    u_loop: &[f64],
+    y_loop: &[f64],
+    loop_hz: f64,
+    loop_fit: usize,
+    ts: f64,
+) -> Result<Structure, SweepError> {
+    let err = |e| SweepError::Fit(0.0, e);
     let opt = OeOptions {
         samples: Samples::First(8000),
         averaging: Averaging::Off,
@@ -146,23 +179,19 @@ pub fn identify_structure(scenario: &Scenario, drive_amplitude: f64) -> Result<S
         hysteresis: LoopSearch::Linear,
         ..OeOptions::default()
     };
-    let fit = fit::fit_oe(&u, &y, ts, n, &ModelSpec::extended(1.0), &[], &opt).map_err(err)?;
+    let fit = fit::fit_oe(u, y, ts, u.len(), &ModelSpec::extended(1.0), &[], &opt).map_err(err)?;
     let resonance_hz = crate::diagnose::resonance_hz(fit.model.ext.ar, ts);
     // The loop: a quasi-static sine at the drive amplitude, with that structure and delay.
-    let n_loop = (LOOP_SECONDS / ts).round() as usize;
-    let u_loop =
-        experiment::sine(drive_amplitude, LOOP_HZ, ts, n_loop).map_err(|e| SweepError::Core(LOOP_HZ, e))?;
-    let y_loop = Bimorph::new(&scenario.clone().with_seed(seed.wrapping_sub(1)))?.run(&u_loop)?;
     let loop_opt = OeOptions {
-        samples: Samples::First(n_loop),
+        samples: Samples::First(loop_fit),
         averaging: Averaging::Off,
         structure: StructureSearch::Fixed(fit.model.ext.ar),
         delay: DelaySearch::Fixed(fit.model.delay),
         ..OeOptions::default()
     };
-    let loop_fit = fit::fit_oe(&u_loop, &y_loop, ts, n_loop, &ModelSpec::extended(LOOP_HZ), &[], &loop_opt)
-        .map_err(err)?;
-    let shape = loop_fit.model.shape().ok_or(SweepError::Fit(LOOP_HZ, FitError::NoStableModel))?;
+    let loop_fit = fit::fit_oe(u_loop, y_loop, ts, loop_fit, &ModelSpec::extended(loop_hz), &[], &loop_opt)
+        .map_err(|e| SweepError::Fit(loop_hz, e))?;
+    let shape = loop_fit.model.shape().ok_or(SweepError::Fit(loop_hz, FitError::NoStableModel))?;
     let mut model = loop_fit.model;
     model.ext.ar = fit.model.ext.ar;
     Ok(Structure { model, shape, rms_fit_um: fit.rms_fit, resonance_hz })
@@ -389,9 +418,9 @@ pub struct FrequencyResult {
 }
 
 /// The models identified at one frequency and their held-out errors.
-struct Identified {
+pub(crate) struct Identified {
     /// The enhanced model's harmonic order (0: none).
-    order: u32,
+    pub(crate) order: u32,
     ext_oe: HostModel,
     enh_oe: HostModel,
     /// The enhanced output-error fit keeps its loop invertible over the record.
@@ -399,7 +428,7 @@ struct Identified {
     ext_rls: HostModel,
     enh_rls: HostModel,
     /// Held-out free-run RMS errors: RLS extended, RLS enhanced, OE extended, OE enhanced.
-    rms: [f64; 4],
+    pub(crate) rms: [f64; 4],
     /// Free runs of the OE models over the whole record.
     y_ext: Vec<f64>,
     y_enh: Vec<f64>,
@@ -407,14 +436,14 @@ struct Identified {
 
 /// Step 1 and 2 of the module docs at one frequency: the fits of both methods on the first
 /// half of the record `(u, y)`, the harmonic order, the held-out errors.
-fn identify_at(
-    opts: &SweepOptions,
+pub(crate) fn identify_at(
+    choice: HarmonicChoice,
+    ts: f64,
     structure: &Structure,
     f: f64,
     u: &[f64],
     y: &[f64],
 ) -> Result<Identified, FitError> {
-    let ts = opts.scenario.sampling.ts_s;
     let fit_end = u.len() / 2;
     // The first 4 s of the fitted half, sample by sample: the record starts from rest and the
     // lightly damped first mode is not in steady state after the skipped 0.2 s.
@@ -428,7 +457,7 @@ fn identify_at(
     };
     let ext_fit = fit::fit_oe(u, y, ts, fit_end, &ModelSpec::extended(f), &[], &oe)?;
     let ext_oe = ext_fit.model.clone();
-    let (order, _share) = choose_order(opts.harmonics, f, ts, u, y, &ext_oe, fit_end)?;
+    let (order, _share) = choose_order(choice, f, ts, u, y, &ext_oe, fit_end)?;
     let orders: Vec<u32> = if order > 0 { vec![order] } else { vec![] };
     let enh_fit = if orders.is_empty() {
         ext_fit
@@ -472,6 +501,19 @@ fn identify_at(
     })
 }
 
+/// The identification record `(u, y)` of frequency `opts.freqs[index]`: the drive of eq. (13)
+/// for `opts.seconds` from rest, with the noise of that frequency's first run.
+/// `boucwen sweep --measured` takes records like these from disk.
+pub fn identification_record(opts: &SweepOptions, index: usize) -> Result<InOut, SweepError> {
+    let f = *opts.freqs.get(index).ok_or(SweepError::NoFrequencies)?;
+    let ts = opts.scenario.sampling.ts_s;
+    let n = (opts.seconds / ts).round() as usize;
+    let seed = opts.scenario.seed.wrapping_mul(1_000_003).wrapping_add(index as u64 * 16);
+    let u = experiment::sine(opts.drive_amplitude, f, ts, n).map_err(|e| SweepError::Core(f, e))?;
+    let y = Bimorph::new(&opts.scenario.clone().with_seed(seed))?.run(&u)?;
+    Ok((u, y))
+}
+
 /// One frequency of the sweep.
 pub fn run_frequency(
     opts: &SweepOptions,
@@ -489,10 +531,9 @@ pub fn run_frequency(
     let plant = |run: u64| Bimorph::new(&opts.scenario.clone().with_seed(seed(run)));
 
     // 1. Identification record, 2. fits.
-    let u = experiment::sine(opts.drive_amplitude, f, ts, n).map_err(|e| SweepError::Core(f, e))?;
-    let y = plant(0)?.run(&u)?;
+    let (u, y) = identification_record(opts, index)?;
     let mut samples = n;
-    let id = identify_at(opts, structure, f, &u, &y).map_err(|e| SweepError::Fit(f, e))?;
+    let id = identify_at(opts.harmonics, ts, structure, f, &u, &y).map_err(|e| SweepError::Fit(f, e))?;
 
     // 3. Compensation: α from eq. (25) on the identification record.
     let alpha = experiment::eq25_amplitude(&u, &y);

@@ -1,0 +1,601 @@
+//! The causes a sine diagnosis tries beyond harmonics and drift, and how each is fitted:
+//! saturation of the drive or of the output, creep, and an input delay (see
+//! [`crate::diagnose`] for how they enter the search, [`crate::terms`] for the model).
+//!
+//! ## Evidence
+//! - **Saturation of the output** (a sensor's range, a mechanical stop): the output sits on
+//!   a plateau at its largest or smallest value ([`plateaus`]): at least [`PLATEAU_SHARE`]
+//!   of the samples within the noise of the extreme. The level is measured there.
+//! - **Saturation of the drive** (an amplifier's rails): the output's odd harmonics form a
+//!   series ([`clipping_series`]): at least three of the 3rd to 9th reach
+//!   [`SERIES_REL`] of the fundamental, as a flattened sine's do; a stiffening shaped by a
+//!   resonance forces one harmonic mostly.
+//! - **Creep**: a drive that holds a level away from the rest (an offset): creep follows the
+//!   drive's level, so it shows after a step of level; a drift line competes with it and the
+//!   one that lowers the held-out error more is kept. Under a drive about 0 V a slow trend
+//!   is drift.
+//! - **Input delay**: a single sine cannot tell a delay from the structure's phase (the
+//!   extended model bends its structure to absorb any delay at one frequency), but the step
+//!   onto the drive excites every frequency: the delay is estimated by fitting the model with
+//!   a delayed input over the start-up and the first periods after the step
+//!   ([`delay_scan`]).
+//!
+//! ## Fits
+//! A term whose model acts on the input only (a clamped drive, an extra delay) is fitted by
+//! [`crate::fit::fit_oe`] on the transformed input: the clamp's level on a grid
+//! ([`CLAMP_GRID`] of the drive's largest excursion), the best by its fitting error, then
+//! refined with the rest of the model ([`crate::terms::refine`]). A clamped output and creep
+//! are refined from the current model.
+
+use crate::analysis::{self, Tone};
+use crate::diagnose::{Candidate, Kind, Residual};
+use crate::fit::{self, Averaging, Branch, DelaySearch, FitError, HostModel, ModelSpec, OeOptions, Samples};
+use crate::terms::{Criterion, Param, Relaxation, TermModel, Terms, refine};
+
+/// Share of the samples on a plateau at the output's extreme for a saturation of the output.
+pub const PLATEAU_SHARE: f64 = 0.05;
+/// A sample is on the plateau within this many times the noise floor of the extreme (or
+/// [`PLATEAU_REL`] of the output's range, if more).
+pub const PLATEAU_NOISE: f64 = 2.0;
+/// See [`PLATEAU_NOISE`].
+pub const PLATEAU_REL: f64 = 5e-4;
+
+/// The output's plateaus: the levels (µm) it sits at, top and bottom, and the share of the
+/// samples on them.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Plateaus {
+    /// The upper level, if the output sits there.
+    pub top: Option<f64>,
+    /// The lower level, if the output sits there.
+    pub bottom: Option<f64>,
+    /// Share of the samples on a plateau (both together).
+    pub share: f64,
+}
+
+impl Plateaus {
+    /// The clamp range `[lo, hi]` (µm) they make, the open side at ±[`crate::record::Y_LIMIT_UM`].
+    pub fn range(&self) -> [f64; 2] {
+        let big = crate::record::Y_LIMIT_UM;
+        [self.bottom.unwrap_or(-big), self.top.unwrap_or(big)]
+    }
+}
+
+/// The plateaus of `y` (see the module docs); `noise_um` is its noise floor. `None` when
+/// it sits on neither extreme.
+pub fn plateaus(y: &[f64], noise_um: f64) -> Option<Plateaus> {
+    if y.len() < 16 {
+        return None;
+    }
+    let (lo, hi) = y.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &v| (a.min(v), b.max(v)));
+    let eps = (PLATEAU_NOISE * noise_um).max(PLATEAU_REL * (hi - lo));
+    let n = y.len() as f64;
+    let on = |level: f64| {
+        let at: Vec<f64> = y.iter().copied().filter(|v| (v - level).abs() <= eps).collect();
+        let share = at.len() as f64 / n;
+        (share >= PLATEAU_SHARE).then(|| (analysis::mean(&at), share))
+    };
+    let top = on(hi);
+    let bottom = on(lo);
+    if top.is_none() && bottom.is_none() {
+        return None;
+    }
+    Some(Plateaus {
+        top: top.map(|t| t.0),
+        bottom: bottom.map(|b| b.0),
+        share: top.map_or(0.0, |t| t.1) + bottom.map_or(0.0, |b| b.1),
+    })
+}
+
+/// A harmonic of a flattened sine counts in its series from this fraction of the
+/// fundamental.
+pub const SERIES_REL: f64 = 0.005;
+
+/// Whether the output's harmonics `out` (fundamental first) form a clipping series: at
+/// least two of the odd harmonics 3 to 9 reach [`SERIES_REL`] of the fundamental.
+pub fn clipping_series(out: &[Tone]) -> bool {
+    let Some(f1) = out.first().map(|t| t.amp).filter(|a| *a > 0.0) else { return false };
+    [3usize, 5, 7, 9].iter().filter(|&&n| out.get(n - 1).is_some_and(|t| t.amp >= SERIES_REL * f1)).count()
+        >= 2
+}
+
+/// The saturation and creep terms a record calls for (see the module docs): a clamp of the
+/// output where it sits on plateaus (`y` is the steady part of the output, `noise_um` its
+/// noise floor), a clamp of the drive where its harmonics `out` form a series, creep where
+/// the drive `u` holds a level of at least [`CREEP_LEVEL_REL`] of its amplitude `amp_v` away
+/// from the rest at 0 V (a step of level the creep follows; under a drive about 0 V the
+/// actuator's level does not change, and a slow trend is drift). A saturation's evidence is
+/// the RMS of the output's harmonics beyond the fundamental, creep's the trend's RMS.
+pub fn candidates(
+    residual: &Residual,
+    out: &[Tone],
+    y: &[f64],
+    noise_um: f64,
+    (u, amp_v): (&[f64], f64),
+) -> Vec<Candidate> {
+    let power = (residual.rms_um * residual.rms_um).max(1e-300);
+    let distortion = (out.iter().skip(1).map(|t| t.amp * t.amp / 2.0).sum::<f64>()).sqrt();
+    let periodic =
+        (residual.harmonics.iter().skip(1).map(|t| t.amp * t.amp / 2.0).sum::<f64>() / power).min(1.0);
+    let saturation = |output_range| Candidate {
+        kind: Kind::Saturation,
+        order: None,
+        freq_hz: 0.0,
+        share: periodic,
+        amp: distortion,
+        evidence_um: distortion,
+        output_range,
+    };
+    let mut c = vec![];
+    if let Some(p) = plateaus(y, noise_um) {
+        c.push(saturation(Some(p.range())));
+    }
+    if clipping_series(out) {
+        c.push(saturation(None));
+    }
+    if analysis::mean(u).abs() >= CREEP_LEVEL_REL * amp_v {
+        c.push(Candidate {
+            kind: Kind::Creep,
+            order: None,
+            freq_hz: 0.0,
+            share: (residual.trend_rms_um.powi(2) / power).min(1.0),
+            amp: residual.trend_rms_um,
+            evidence_um: residual.trend_rms_um,
+            output_range: None,
+        });
+    }
+    c
+}
+
+/// A drive whose mean is this fraction of its amplitude away from 0 V has moved the
+/// actuator's level: creep follows such a step.
+pub const CREEP_LEVEL_REL: f64 = 0.1;
+
+/// The spec a host model was fitted with: its drive, branches and drift degree.
+pub fn spec_of(host: &HostModel) -> ModelSpec {
+    ModelSpec {
+        drive_hz: host.drive_hz,
+        harmonics: host.branches.iter().map(|b| b.order).collect(),
+        drift_degree: (!host.drift.is_empty()).then(|| host.drift.len() - 1),
+    }
+}
+
+/// `model` with `spec`'s branches and drift degree (new weights and coefficients at 0),
+/// refined jointly (for a model whose terms act inside or after it, which
+/// [`crate::fit::fit_oe`] cannot fit).
+pub fn refine_with(
+    model: &TermModel,
+    spec: &ModelSpec,
+    u: &[f64],
+    y: &[f64],
+    ts: f64,
+    split: usize,
+    opt: &OeOptions,
+) -> Option<TermModel> {
+    let mut m = model.clone();
+    for &order in &spec.harmonics {
+        if !m.host.branches.iter().any(|b| b.order == order) {
+            m.host.branches.push(Branch { order, alpha_s: 0.0, alpha_c: 0.0, ar: [0.0, 0.0] });
+        }
+    }
+    if let Some(d) = spec.drift_degree {
+        m.host.drift.resize(d + 1, 0.0);
+    }
+    let free = m.host_params();
+    refine(&m, &free, u, y, ts, &criterion(opt, split, ts, REFINE_ITER)).map(|r| r.0)
+}
+
+/// The clamp levels tried, as fractions of the drive's largest excursion from 0 V.
+pub const CLAMP_GRID: [f64; 7] = [0.6, 0.7, 0.75, 0.8, 0.85, 0.9, 0.95];
+
+/// The criterion of a refinement: `opt`'s samples from its start-up on, up to `split`, at
+/// most [`MAX_REFINE_S`] of them (`ts` the sample interval).
+pub fn criterion(opt: &OeOptions, split: usize, ts: f64, max_iter: usize) -> Criterion {
+    let end = match opt.samples {
+        Samples::All => split,
+        Samples::First(n) => n.min(split),
+    };
+    Criterion { skip: opt.skip, end: end.min(opt.skip + (MAX_REFINE_S / ts).round() as usize), max_iter }
+}
+
+/// Longest criterion of a refinement (s): each of its evaluations is a free run.
+pub const MAX_REFINE_S: f64 = 3.0;
+
+/// Fits `spec` to the input as `model`'s terms transform it (clamp, extra delay), keeping
+/// `model`'s own delay, from `model`'s host. Only for terms that act on the input.
+pub fn fit_host(
+    model: &TermModel,
+    spec: &ModelSpec,
+    u: &[f64],
+    y: &[f64],
+    ts: f64,
+    split: usize,
+    opt: &OeOptions,
+) -> Result<(TermModel, f64), FitError> {
+    let ui = model.terms.input(u);
+    let o = OeOptions { delay: DelaySearch::Fixed(model.host.delay), ..opt.clone() };
+    let f = fit::fit_oe(&ui, y, ts, split, spec, std::slice::from_ref(&model.host), &o)?;
+    Ok((TermModel { host: f.model, terms: model.terms.clone() }, f.rms_fit))
+}
+
+/// The current model with its drive clamped: the level from [`CLAMP_GRID`] whose fit has
+/// the lowest fitting error, refined with the rest of the model (both levels free).
+pub fn fit_input_clamp(
+    model: &TermModel,
+    spec: &ModelSpec,
+    u: &[f64],
+    y: &[f64],
+    ts: f64,
+    split: usize,
+    opt: &OeOptions,
+) -> Option<TermModel> {
+    if !model.terms.input_only() || model.terms.input_clamp.is_some() {
+        return None;
+    }
+    let peak = u[..split].iter().fold(0.0f64, |m, v| m.max(v.abs()));
+    let tried: Vec<(TermModel, f64)> = CLAMP_GRID
+        .iter()
+        .filter_map(|frac| {
+            let mut m = model.clone();
+            m.terms.input_clamp = Some([-frac * peak, frac * peak]);
+            fit_host(&m, spec, u, y, ts, split, opt).ok()
+        })
+        .collect();
+    // The fitting error of a clamped drive has local minima in the level: refine the best
+    // few levels of the grid and keep the best.
+    let mut tried = tried;
+    tried.sort_by(|a, b| a.1.total_cmp(&b.1));
+    tried
+        .iter()
+        .take(CLAMP_STARTS)
+        .filter_map(|(m, _)| {
+            let mut free = m.host_params();
+            free.extend([Param::InputClamp(0), Param::InputClamp(1)]);
+            refine(m, &free, u, y, ts, &criterion(opt, split, ts, REFINE_ITER))
+        })
+        .min_by(|a, b| a.1.total_cmp(&b.1))
+        .map(|r| r.0)
+}
+
+/// Levels of the grid a clamped drive is refined from.
+pub const CLAMP_STARTS: usize = 3;
+
+/// Levenberg–Marquardt iterations of a term's refinement.
+pub const REFINE_ITER: usize = 30;
+
+/// The current model with its output clamped at `range` (µm, measured on the plateaus),
+/// refined: samples where the model is beyond the range no longer pull the fit.
+pub fn fit_output_clamp(
+    model: &TermModel,
+    range: [f64; 2],
+    u: &[f64],
+    y: &[f64],
+    ts: f64,
+    split: usize,
+    opt: &OeOptions,
+) -> Option<TermModel> {
+    if model.terms.output_clamp.is_some() {
+        return None;
+    }
+    let mut m = model.clone();
+    m.terms.output_clamp = Some(range);
+    let free = m.host_params();
+    refine(&m, &free, u, y, ts, &criterion(opt, split, ts, REFINE_ITER)).map(|r| r.0)
+}
+
+/// Creep states: two relaxations (started as below), their time constants kept between [`MIN_CREEP_TAU_S`] (or ten drive periods) and four
+/// times the fitted span, fitted over the whole fitted part.
+pub fn fit_creep(
+    model: &TermModel,
+    u: &[f64],
+    y: &[f64],
+    ts: f64,
+    split: usize,
+    opt: &OeOptions,
+) -> Option<TermModel> {
+    if !model.terms.creep.is_empty() {
+        return None;
+    }
+    let span_s = (split - opt.skip.min(split)) as f64 * ts;
+    let lo = MIN_CREEP_TAU_S.max(10.0 / model.host.drive_hz.max(1e-9));
+    let hi = 4.0 * span_s;
+    if hi <= lo {
+        return None;
+    }
+    // From no creep, and from a creep of [`CREEP_START_GAIN`] per state with time constants
+    // of an eighth and a half, or a half and twice, the fitted span (the model's loop can
+    // imitate a relaxation by ratcheting under a drive with a level, a local optimum the
+    // refinement from no creep may not leave); the best fit is kept.
+    let c = Criterion { skip: opt.skip, end: split, max_iter: REFINE_ITER };
+    let starts = [([0.125, 0.5], 0.0), ([0.125, 0.5], CREEP_START_GAIN), ([0.5, 2.0], CREEP_START_GAIN)];
+    starts
+        .iter()
+        .filter_map(|&(taus, gain)| {
+            let mut m = model.clone();
+            m.terms.creep_tau_range_s = [lo, hi];
+            m.terms.creep =
+                taus.iter().map(|&t| Relaxation { tau_s: (t * span_s).clamp(lo, hi), gain }).collect();
+            let mut free = m.host_params();
+            for j in 0..m.terms.creep.len() {
+                free.extend([Param::CreepGain(j), Param::CreepTau(j)]);
+            }
+            // A relaxation extrapolates from the longest base: the whole fitted part.
+            let mut best = refine(&m, &free, u, y, ts, &c);
+            if gain > 0.0 && m.terms.input_only_but_creep() {
+                // The host refitted to the output less the creep's start: its loop fitted
+                // without the relaxation.
+                let with = m.simulate(u, ts).ok()?;
+                let mut bare = m.clone();
+                bare.terms.creep.clear();
+                let without = bare.simulate(u, ts).ok()?;
+                let target: Vec<f64> =
+                    y.iter().zip(with.iter().zip(&without)).map(|(v, (a, b))| v - (a - b)).collect();
+                let o = OeOptions { samples: Samples::All, ..opt.clone() };
+                if let Ok((h, _)) = fit_host(&bare, &spec_of(&m.host), u, &target, ts, split, &o) {
+                    let start = TermModel { host: h.host, terms: m.terms.clone() };
+                    if let Some(r) = refine(&start, &free, u, y, ts, &c) {
+                        if best.as_ref().is_none_or(|b| r.1 < b.1) {
+                            best = Some(r);
+                        }
+                    }
+                }
+            }
+            best
+        })
+        .min_by(|a, b| a.1.total_cmp(&b.1))
+        .map(|r| r.0)
+}
+
+/// The second start of the creep's gains.
+pub const CREEP_START_GAIN: f64 = 0.05;
+
+/// Shortest creep time constant (s).
+pub const MIN_CREEP_TAU_S: f64 = 0.1;
+
+/// Longest input delay looked for (whole samples).
+pub const MAX_DELAY_SHIFT: usize = 20;
+
+/// Length of the delay's criterion after the step onto the drive (s): the start-up and a
+/// few periods.
+pub const DELAY_WINDOW_S: f64 = 1.0;
+
+/// A delay found from the start-up.
+#[derive(Clone, Debug)]
+pub struct DelayScan {
+    /// The model with the delay (its terms carry the whole samples, its host the fraction).
+    pub model: TermModel,
+    /// The delay (samples).
+    pub samples: f64,
+    /// RMS error over the delay's criterion (the start-up and the first periods) of the
+    /// model fitted the same way without a delay, and with it (µm).
+    pub rms_without_um: f64,
+    /// See [`DelayScan::rms_without_um`].
+    pub rms_with_um: f64,
+    /// RMS of the difference of the two models' outputs over that criterion (µm): what the
+    /// delay carries.
+    pub change_rms_um: f64,
+    /// Length of the criterion (s).
+    pub window_s: f64,
+}
+
+/// Smallest delay named as a finding (samples): a sampled actuator answers about one sample
+/// after the paper's instantaneous `A1·u[k]` from its zero-order hold (half a sample) and
+/// its driver and transport (the virtual bimorph: 1.1 samples), which the extended model's
+/// structure absorbs at one frequency; a delay of two samples or more is beyond that.
+pub const MIN_DELAY_SAMPLES: f64 = 2.0;
+
+/// The extended model keeps a delay if its held-out error with the delay is at most this
+/// factor of the error without it.
+pub const DELAY_HELD_OUT_SLACK: f64 = 1.1;
+
+/// Fits `spec` (with `model`'s input-side terms) over the step onto the drive and the
+/// [`DELAY_WINDOW_S`] after it, for every whole delay `0..=`[`MAX_DELAY_SHIFT`], refines
+/// the best with a fractional delay, and returns it with the fit without a delay (see the
+/// module docs). `None` if no fit succeeds.
+pub fn delay_scan(
+    model: &TermModel,
+    spec: &ModelSpec,
+    u: &[f64],
+    y: &[f64],
+    ts: f64,
+    split: usize,
+    opt: &OeOptions,
+) -> Option<DelayScan> {
+    if !model.terms.input_only() {
+        return None;
+    }
+    let end = split.min(1 + (DELAY_WINDOW_S / ts).round() as usize);
+    let o = OeOptions {
+        skip: 1,
+        samples: Samples::First(end),
+        averaging: Averaging::Off,
+        delay: DelaySearch::Fixed(0.0),
+        ..opt.clone()
+    };
+    let fits: Vec<(TermModel, f64)> = (0..=MAX_DELAY_SHIFT)
+        .filter_map(|shift| {
+            let mut m = model.clone();
+            m.terms.extra_delay = shift;
+            m.host.delay = 0.0;
+            let f = fit::fit_oe(&m.terms.input(u), y, ts, split, spec, &[], &o).ok()?;
+            Some((TermModel { host: f.model, terms: m.terms }, f.rms_fit))
+        })
+        .collect();
+    let (no_delay, without) = fits.iter().find(|f| f.0.terms.extra_delay == 0).cloned()?;
+    let (best, at_best) = fits.into_iter().min_by(|a, b| a.1.total_cmp(&b.1))?;
+    // The fraction of a sample: from half a sample before the best whole delay.
+    let mut start = best.clone();
+    start.terms.extra_delay = best.terms.extra_delay.saturating_sub(1);
+    start.host.delay = if best.terms.extra_delay > 0 { 1.0 } else { 0.0 };
+    let mut free = start.host_params();
+    free.push(Param::Delay);
+    let c = Criterion { skip: 1, end, max_iter: REFINE_ITER };
+    let (model, with) = match refine(&start, &free, u, y, ts, &c) {
+        Some((m, r)) if r < at_best => (m, r),
+        _ => (best, at_best),
+    };
+    let samples = model.delay_samples();
+    let (a, b) = (model.simulate(&u[..end], ts).ok()?, no_delay.simulate(&u[..end], ts).ok()?);
+    let change_rms_um = analysis::rms_diff(&a[1..], &b[1..]);
+    Some(DelayScan {
+        model,
+        samples,
+        rms_without_um: without,
+        rms_with_um: with,
+        change_rms_um,
+        window_s: (end - 1) as f64 * ts,
+    })
+}
+
+/// The cause of a saturation in words, and its level: a clamped drive (the levels in V of
+/// `u`, the series of odd harmonics it puts in the output `out`) or a clamped output (the
+/// level in µm and the share of the steady output `y` on it; `noise_um` its noise floor).
+/// `step` says what the term did to the held-out RMS.
+pub fn explain_saturation(
+    terms: &Terms,
+    c: &Candidate,
+    step: &str,
+    out: &[Tone],
+    y: &[f64],
+    noise_um: f64,
+) -> (String, Option<(f64, &'static str)>) {
+    match (c.output_range, terms.input_clamp) {
+        (Some(range), _) => {
+            let p = plateaus(y, noise_um);
+            let big = crate::record::Y_LIMIT_UM;
+            let sides: Vec<String> = [(range[1], "above"), (range[0], "below")]
+                .iter()
+                .filter(|(v, _)| v.abs() < big)
+                .map(|(v, side)| format!("{v:.3} µm (nothing {side} it)"))
+                .collect();
+            let level = if range[1] < big { range[1] } else { range[0] };
+            (
+                format!(
+                    "saturation of the output: it sits flat at {} in {:.0} % of the samples, a sensor's range or a \
+                     mechanical stop; the model should not be fitted across it: with the output clamped there the \
+                     samples beyond it no longer pull the fit; {step}",
+                    sides.join(" and "),
+                    100.0 * p.map_or(0.0, |p| p.share)
+                ),
+                Some((level, "µm")),
+            )
+        }
+        (None, Some([lo, hi])) => {
+            let f1 = out.first().map_or(0.0, |t| t.amp).max(1e-300);
+            let series: Vec<String> = [3usize, 5, 7, 9]
+                .iter()
+                .filter_map(|&n| {
+                    out.get(n - 1).map(|t| format!("{} {:.1} %", ordinal(n), 100.0 * t.amp / f1))
+                })
+                .collect();
+            (
+                format!(
+                    "saturation of the drive: the actuator stops following it beyond {lo:.3} V and {hi:.3} V of u \
+                     (an amplifier's rails; the level at which the model's drive, clamped, fits best), which puts a \
+                     series of odd harmonics in the output ({}); the model should not be fitted across it: with the \
+                     drive clamped there, {step}",
+                    series.join(", ")
+                ),
+                Some((hi.abs().max(lo.abs()), "V")),
+            )
+        }
+        (None, None) => (format!("saturation: {step}"), None),
+    }
+}
+
+/// The cause of creep in words: its relaxations, and the trend of the baseline's residual
+/// it replaces. `step` says what the term did to the held-out RMS.
+pub fn explain_creep(terms: &Terms, residual: &Residual, step: &str) -> String {
+    let states: Vec<String> = terms
+        .creep
+        .iter()
+        .filter(|c| c.gain > 0.0)
+        .map(|c| format!("{:.2} s ({:.1} % of the deflection the drive asks for)", c.tau_s, 100.0 * c.gain))
+        .collect();
+    format!(
+        "creep: the output relaxes slowly after the drive, with time constants {}; the baseline's residual holds a \
+         slow part of {:.3} µm RMS (mean {:.3} µm, slope {:.4} µm/s) that follows the drive's history rather than a \
+         straight line; {step}",
+        if states.is_empty() { "none left after the fit".to_string() } else { states.join(" and ") },
+        residual.trend_rms_um,
+        residual.trend_mean_um,
+        residual.trend_slope_um_per_s,
+    )
+}
+
+/// The cause of an input delay in words: the delay, its gain on the start-up, and the held-out
+/// RMS of the extended model without and (if it was kept) with it.
+pub fn explain_delay(
+    scan: &DelayScan,
+    ts: f64,
+    held_out_before_um: f64,
+    held_out_after_um: Option<f64>,
+) -> String {
+    let gain = 100.0 * (1.0 - scan.rms_with_um / scan.rms_without_um.max(1e-300));
+    let held = match held_out_after_um {
+        Some(a) => format!(
+            "the extended model carries it: held-out RMS {a:.4} µm ({held_out_before_um:.4} µm without)"
+        ),
+        None => format!(
+            "it is not added to the extended model: with it the held-out RMS would rise above {:.0} % of its \
+             {held_out_before_um:.4} µm",
+            100.0 * DELAY_HELD_OUT_SLACK
+        ),
+    };
+    format!(
+        "input delay: the output answers the step onto the drive {:.1} samples ({:.2} ms) after the drive, beyond \
+         the {MIN_DELAY_SAMPLES:.0} samples a sampled actuator's hold and driver explain; a single sine cannot tell \
+         a delay from the structure's phase (the model absorbs it by moving its resonance), but the step excites \
+         every frequency: fitted over the start-up and the first {:.1} s with the delay, the model's RMS error \
+         there falls from {:.4} to {:.4} µm ({gain:.0}%); {held}",
+        scan.samples,
+        1e3 * scan.samples * ts,
+        scan.window_s,
+        scan.rms_without_um,
+        scan.rms_with_um,
+    )
+}
+
+fn ordinal(n: usize) -> String {
+    let suffix = match (n % 10, n % 100) {
+        (1, r) if r != 11 => "st",
+        (2, r) if r != 12 => "nd",
+        (3, r) if r != 13 => "rd",
+        _ => "th",
+    };
+    format!("{n}{suffix}")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_clipped_output_sits_on_plateaus_a_sine_does_not() {
+        let y: Vec<f64> =
+            (0..5000).map(|k| 10.0 * (std::f64::consts::TAU * 0.023 * k as f64).sin()).collect();
+        assert_eq!(plateaus(&y, 0.01), None);
+        let clipped: Vec<f64> = y.iter().map(|v| v.min(8.0)).collect();
+        let p = plateaus(&clipped, 0.01).unwrap();
+        assert_eq!(p.top, Some(8.0));
+        assert_eq!(p.bottom, None);
+        assert!((p.share - 0.205).abs() < 0.01, "{}", p.share);
+        assert_eq!(p.range()[1], 8.0);
+    }
+
+    #[test]
+    fn a_flattened_sine_has_a_series_of_odd_harmonics() {
+        let ts = 1e-3;
+        let x: Vec<f64> = (0..4000)
+            .map(|k| (std::f64::consts::TAU * 10.0 * k as f64 * ts).sin().clamp(-0.75, 0.75))
+            .collect();
+        let h = analysis::harmonics(&x, 10.0, ts, 9);
+        assert!(clipping_series(&h), "{:?}", h.iter().map(|t| t.amp).collect::<Vec<_>>());
+        let pure: Vec<f64> = (0..4000)
+            .map(|k| {
+                let th = std::f64::consts::TAU * 10.0 * k as f64 * ts;
+                th.sin() + 0.1 * (3.0 * th).sin()
+            })
+            .collect();
+        assert!(!clipping_series(&analysis::harmonics(&pure, 10.0, ts, 9)));
+    }
+}
