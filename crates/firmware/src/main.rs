@@ -122,15 +122,20 @@ fn stack_peak() -> u32 {
 
 /// Counts the sample periods missed between two tick interrupts from the clock: the
 /// period in clock units is learnt as the median of the intervals between the 8th and the
-/// 40th tick after start-up (the timer and the clock need not share a source; a median
-/// ignores the odd interval stretched or shortened by a late interrupt), then any interval
-/// over 1.5 periods missed `round(interval / period) - 1` ticks.
+/// 40th tick after start-up, and again after the start of each run (the timer and the clock
+/// need not share a source; a median ignores the odd interval stretched or shortened by a
+/// late interrupt), then any interval over 1.5 periods missed `round(interval / period) - 1`
+/// ticks. Learnt again at each run: in QEMU's `mps2-an386` (`-icount`, `sleep=off`) the
+/// intervals of an idle board after start-up were two thirds of those of a run on one host
+/// (every tick of a self-test run then counted missed), not on another; a run's own first
+/// ticks are what its later ones are compared with.
 pub struct MissedTicks {
     seen: [u32; Self::LEARN as usize],
     last: Option<u32>,
     per_1000us: u32,
     learning: u32,
     period_us: u32,
+    running: bool,
 }
 
 impl MissedTicks {
@@ -144,27 +149,41 @@ impl MissedTicks {
             per_1000us: u32::MAX,
             learning: Self::SKIP + Self::LEARN,
             period_us: 1000,
+            running: false,
         }
+    }
+
+    /// Notes whether a run is on: at a run's start the period is learnt again.
+    fn run_state(&mut self, running: bool) {
+        if running && !self.running {
+            self.learning = Self::SKIP + Self::LEARN;
+            self.per_1000us = u32::MAX;
+        }
+        self.running = running;
     }
 
     fn period_changed(&mut self, period_us: u32) {
         self.period_us = period_us;
         self.last = None;
+        if self.learning > 0 {
+            // Learn at the new period from its start.
+            self.learning = Self::SKIP + Self::LEARN;
+        }
     }
 
     fn at(&mut self, now: u32) -> u32 {
         let Some(last) = self.last.replace(now) else { return 0 };
         let interval = now.wrapping_sub(last);
         if self.learning > 0 {
-            if self.period_us == 1000 {
-                if self.learning <= Self::LEARN {
-                    self.seen[(self.learning - 1) as usize] = interval;
-                }
-                self.learning -= 1;
-                if self.learning == 0 {
-                    self.seen.sort_unstable();
-                    self.per_1000us = self.seen[Self::LEARN as usize / 2];
-                }
+            if self.learning <= Self::LEARN {
+                self.seen[(self.learning - 1) as usize] = interval;
+            }
+            self.learning -= 1;
+            if self.learning == 0 {
+                self.seen.sort_unstable();
+                // The median interval at the current period, scaled to 1000 µs.
+                let median = self.seen[Self::LEARN as usize / 2] as u64;
+                self.per_1000us = (median * 1000 / self.period_us.max(1) as u64).min(u32::MAX as u64) as u32;
             }
             return 0;
         }
@@ -298,10 +317,12 @@ mod app {
             local.tick.start(request);
             local.missed.period_changed(request);
         }
-        let missed = local.missed.at(t0);
         let converters = &mut *local.converters;
+        let missed_ticks = &mut *local.missed;
         cx.shared.device.lock(|device| {
             let in_run = device.running();
+            missed_ticks.run_state(in_run);
+            let missed = missed_ticks.at(t0);
             device.on_tick(missed, converters, &clock, &mut send);
             persist::store_drive(device.drive_v(), device.safety().slew_v_per_s);
             TICKS.fetch_add(1, Ordering::Relaxed);
