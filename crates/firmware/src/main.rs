@@ -51,7 +51,13 @@ pub static RX: ByteRing<512> = ByteRing::new();
 /// Frames to send, waiting for the transmitter: 4 KiB, 200 ms of telemetry at 1 kHz (the
 /// line drains 46 bytes per ms; the margin is for QEMU, whose serial port can fall behind
 /// its clock when the host is loaded: with 1 KiB a 6 s excitation lost up to 85 frames).
+#[cfg(not(feature = "orc"))]
 pub static TX: ByteRing<4096> = ByteRing::new();
+/// Frames to send: 2 KiB with the ORC, whose 512-sample delay line is on the stack (with
+/// 4 KiB the ORC build's static RAM and peak stack filled the 16 KiB, and the stack ran
+/// into the statics).
+#[cfg(feature = "orc")]
+pub static TX: ByteRing<2048> = ByteRing::new();
 /// A tick period requested by `idle` (0: none), applied by the tick interrupt.
 static PERIOD_REQUEST_US: AtomicU32 = AtomicU32::new(0);
 /// Ticks handled (for the watchdog's feeding in `idle`).
