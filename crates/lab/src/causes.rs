@@ -28,7 +28,7 @@
 //! are refined from the current model.
 
 use crate::analysis::{self, Tone};
-use crate::diagnose::{Candidate, Kind, Residual};
+use crate::diagnose::{Candidate, Kind, Residual, ordinal};
 use crate::fit::{self, Averaging, Branch, DelaySearch, FitError, HostModel, ModelSpec, OeOptions, Samples};
 use crate::terms::{Criterion, Param, Relaxation, TermModel, Terms, refine};
 
@@ -484,7 +484,7 @@ pub fn explain_saturation(
             let series: Vec<String> = [3usize, 5, 7, 9]
                 .iter()
                 .filter_map(|&n| {
-                    out.get(n - 1).map(|t| format!("{} {:.1} %", ordinal(n), 100.0 * t.amp / f1))
+                    out.get(n - 1).map(|t| format!("{} {:.1} %", ordinal(n as u32), 100.0 * t.amp / f1))
                 })
                 .collect();
             (
@@ -553,16 +553,6 @@ pub fn explain_delay(
         scan.rms_without_um,
         scan.rms_with_um,
     )
-}
-
-fn ordinal(n: usize) -> String {
-    let suffix = match (n % 10, n % 100) {
-        (1, r) if r != 11 => "st",
-        (2, r) if r != 12 => "nd",
-        (3, r) if r != 13 => "rd",
-        _ => "th",
-    };
-    format!("{n}{suffix}")
 }
 
 #[cfg(test)]

@@ -1391,7 +1391,7 @@ fn diagnose_from(
         let Some(pos) = winner else {
             break;
         };
-        let (i, m, rms, term) = tried.into_iter().nth(pos).expect("the winner is one of the trials");
+        let Some((i, m, rms, term)) = tried.into_iter().nth(pos) else { break };
         if round == 0 && depth < MAX_BASELINE_REFITS {
             let stripped = without(&m, &remaining[i]).host;
             let refit = fit::fit_oe_on(&data, &spec, &[stripped], &opt).map(|f| f.model);
@@ -1965,7 +1965,8 @@ fn explain(
     }
 }
 
-fn ordinal(n: u32) -> String {
+/// "1st", "2nd", "3rd", "11th", …
+pub(crate) fn ordinal(n: u32) -> String {
     let suffix = match (n % 10, n % 100) {
         (1, r) if r != 11 => "st",
         (2, r) if r != 12 => "nd",

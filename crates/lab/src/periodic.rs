@@ -489,7 +489,7 @@ pub fn diagnose(
         }
         let Some(w) = winner else { break };
         trials[first + w].kept = true;
-        let (p, m, ..) = tried.into_iter().nth(w).expect("the winner is one of the trials");
+        let Some((p, m, ..)) = tried.into_iter().nth(w) else { break };
         steps.push(evaluate(&format!("extended + {}", term_name(p)), m)?);
         kept.push(p);
         remaining.retain(|q| *q != p);

@@ -57,9 +57,9 @@ impl<'a> Output<'a> {
     }
 
     /// Writes `text` to `dir/name` atomically.
-    fn put(&mut self, name: &str, text: String) -> Result<(), ReportError> {
+    fn put(&mut self, name: &str, text: impl AsRef<str>) -> Result<(), ReportError> {
         let p = self.dir.join(name);
-        write_atomic(&p, text.as_bytes()).map_err(ReportError::Write)?;
+        write_atomic(&p, text.as_ref().as_bytes()).map_err(ReportError::Write)?;
         self.written.push(p);
         Ok(())
     }
@@ -196,29 +196,40 @@ pub fn write_diagnosis(
     source: &str,
     dir: &Path,
 ) -> Result<Vec<PathBuf>, ReportError> {
-    let mut out = Output::new(dir)?;
-    let mut put = |name: &str, text: String| out.put(name, text);
     let figures = [
         ("residual_spectrum.svg", residual_spectrum(d, y).to_svg()),
         ("loops.svg", diagnosis_loops(d, u, y).to_svg()),
         ("time_series.svg", diagnosis_time_series(d, y).to_svg()),
         ("residual.svg", diagnosis_residual(d, y).to_svg()),
     ];
+    write_page(dir, source, &d.summary(source), &figures, &d.json())
+}
+
+/// A diagnosis page in `dir`: `index.html` (the report `summary` of `source` and the
+/// `figures`), the figures and `diagnosis.json`. Returns the files written.
+fn write_page(
+    dir: &Path,
+    source: &str,
+    summary: &str,
+    figures: &[(&str, String)],
+    json: &serde_json::Value,
+) -> Result<Vec<PathBuf>, ReportError> {
+    let mut out = Output::new(dir)?;
     let mut html = format!(
         "<!doctype html>\n<html><head><meta charset=\"utf-8\"><title>boucwen diagnose: {0}</title>\
          <style>body{{font-family:sans-serif;max-width:980px;margin:2em auto}}pre{{background:#f6f6f6;\
          padding:1em;white-space:pre-wrap}}img{{max-width:100%}}</style></head><body>\n\
          <h1>Diagnosis of {0}</h1>\n<pre>{1}</pre>\n",
         html_escape(source),
-        html_escape(&d.summary(source))
+        html_escape(summary)
     );
     for (name, svg) in figures {
         html.push_str(&format!("<p><img src=\"{name}\" alt=\"{name}\"></p>\n"));
-        put(name, svg)?;
+        out.put(name, svg)?;
     }
     html.push_str("</body></html>\n");
-    put("diagnosis.json", format!("{:#}\n", d.json()))?;
-    put("index.html", html)?;
+    out.put("diagnosis.json", format!("{json:#}\n"))?;
+    out.put("index.html", html)?;
     Ok(out.written)
 }
 
@@ -301,24 +312,8 @@ pub fn diagnosis_residual(d: &Diagnosis, y: &[f64]) -> Chart {
 /// excited lines, the odd lines left out and the even lines, with the noise, for the first
 /// realisation). Returns the files written.
 pub fn write_periodic(d: &PeriodicDiagnosis, source: &str, dir: &Path) -> Result<Vec<PathBuf>, ReportError> {
-    let mut out = Output::new(dir)?;
     let figures = [("lines.svg", periodic_lines(d).to_svg())];
-    let mut html = format!(
-        "<!doctype html>\n<html><head><meta charset=\"utf-8\"><title>boucwen diagnose: {0}</title>\
-         <style>body{{font-family:sans-serif;max-width:980px;margin:2em auto}}pre{{background:#f6f6f6;\
-         padding:1em;white-space:pre-wrap}}img{{max-width:100%}}</style></head><body>\n\
-         <h1>Diagnosis of {0}</h1>\n<pre>{1}</pre>\n",
-        html_escape(source),
-        html_escape(&d.summary(source))
-    );
-    for (name, svg) in figures {
-        html.push_str(&format!("<p><img src=\"{name}\" alt=\"{name}\"></p>\n"));
-        out.put(name, svg)?;
-    }
-    html.push_str("</body></html>\n");
-    out.put("diagnosis.json", format!("{:#}\n", d.json()))?;
-    out.put("index.html", html)?;
-    Ok(out.written)
+    write_page(dir, source, &d.summary(source), &figures, &d.json())
 }
 
 /// The output's lines (first realisation): excited, odd left out, even, and the noise of the

@@ -83,7 +83,8 @@ pub(crate) fn levenberg_marquardt(
     let finish =
         |phi, cur, stop, iterations, evaluations| Some(Run { phi, eval: cur, stop, iterations, evaluations });
     for iter in 0..tol.max_iter {
-        let (jtj, g) = cur.jac.clone().expect("the run evaluates with the Jacobian");
+        // Every evaluation of a run carries its Jacobian; one without cannot be stepped.
+        let (jtj, g) = cur.jac.clone()?;
         if cur.cost <= 0.0 {
             return finish(phi, cur, Stop::Gradient, iter, evaluations);
         }
