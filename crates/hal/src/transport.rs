@@ -17,7 +17,7 @@
 
 use boucwen_core::Plant;
 use boucwen_link::frame::{SeqGap, SeqTracker};
-use boucwen_link::message::{Mode, PlantParams, kind};
+use boucwen_link::message::{Mode, PlantParams, RunState, kind};
 use boucwen_link::{self as wire, Decoder, Message, Packet, WireError};
 use rand_core::{RngCore, SeedableRng};
 use rand_xoshiro::Xoshiro256PlusPlus;
@@ -601,26 +601,53 @@ impl<P: Port> BoardPlant<P> {
         let link = &mut self.link;
         link.flush_peer()?;
         link.discard_input();
+        // The answer to `Stop` is a status that says the run is over (a status that still says
+        // running is not its answer).
         link.request(&Message::Stop, attempts, timeout, |_, m| {
-            matches!(m, Message::Status(_)).then_some(())
+            matches!(m, Message::Status(s) if s.state != RunState::Running as u8).then_some(())
         })?
         .ok_or_else(|| BoardError::NoAnswer { port: name.clone(), request: Request::Stop })?;
         for (msg, want) in [
             (Message::SetPlant(self.params.clone()), kind::SET_PLANT),
             (Message::Start { mode: Mode::Plant, samples: 0 }, kind::START),
         ] {
-            let answer = link.request(&msg, attempts, timeout, |seq, m| match m {
-                Message::Ack { kind, seq: s } if *kind == want && *s == seq => Some(Ok(())),
-                Message::Fault(f) if f.seq == seq => Some(Err(f.text.to_string())),
-                _ => None,
-            })?;
-            match answer {
-                Some(Ok(())) => {}
-                Some(Err(text)) => {
-                    return Err(BoardError::Refused { port: name.clone(), fault: text });
-                }
-                None => {
-                    return Err(BoardError::NoAnswer { port: name.clone(), request: Request::Kind(want) });
+            let mut busy = 0;
+            loop {
+                let answer = link.request(&msg, attempts, timeout, |seq, m| match m {
+                    Message::Ack { kind, seq: s } if *kind == want && *s == seq => Some(Ok(())),
+                    Message::Fault(f) if f.seq == seq => Some(Err((f.code, f.text.to_string()))),
+                    _ => None,
+                })?;
+                match answer {
+                    Some(Ok(())) => break,
+                    // A `Start` whose answer was lost on the way and was sent again is refused
+                    // as busy by the run it started: the board's status tells. After `Stop`
+                    // the board may still be ramping its drive to 0 V: wait and ask again.
+                    Some(Err((boucwen_link::message::FaultCode::Busy, _))) if busy + 1 < attempts => {
+                        busy += 1;
+                        if want == kind::START {
+                            let status =
+                                link.request(&Message::GetStatus, attempts, timeout, |_, m| match m {
+                                    Message::Status(st) => Some(*st),
+                                    _ => None,
+                                })?;
+                            if status.is_some_and(|st| {
+                                st.state == RunState::Running as u8 && st.mode == Mode::Plant as u8
+                            }) {
+                                break;
+                            }
+                        }
+                        std::thread::sleep(timeout);
+                    }
+                    Some(Err((_, text))) => {
+                        return Err(BoardError::Refused { port: name.clone(), fault: text });
+                    }
+                    None => {
+                        return Err(BoardError::NoAnswer {
+                            port: name.clone(),
+                            request: Request::Kind(want),
+                        });
+                    }
                 }
             }
         }
