@@ -20,7 +20,8 @@
 //! range with a 3rd harmonic, right when every hidden effect is named (kind; order for a
 //! harmonic) and the first finding is one of them; periodic records (a multisine in two
 //! realisations, a triangle) with a hidden odd or even nonlinearity, right when the first
-//! finding names its parity, and clean, right when there is no finding.
+//! finding names its parity, and clean, right when there is no finding. `--only PART` runs
+//! only the new kinds whose name contains `PART` (e.g. `--only triangle`).
 
 use boucwen_lab::diagnose::{self, Diagnosis, Kind, Thresholds};
 use boucwen_lab::effects::{Nonlinearity, PeriodicCase, PeriodicDrive, SineCase, SineEffect, Truth};
@@ -95,10 +96,12 @@ struct Args {
     /// Run the kinds of `hidden` (old), of `effects` (new), or both.
     old: bool,
     new: bool,
+    /// Only the new kinds whose name contains this (`--only triangle`).
+    only: Option<String>,
 }
 
 fn args() -> Result<Args, String> {
-    let mut a = Args { per_effect: 40, seed: 1000, verbose: false, dump: None, old: true, new: true };
+    let mut a = Args { per_effect: 40, seed: 1000, verbose: false, dump: None, old: true, new: true, only: None };
     let mut it = std::env::args().skip(1);
     while let Some(arg) = it.next() {
         let mut value = |name: &str| -> Result<u64, String> {
@@ -110,6 +113,10 @@ fn args() -> Result<Args, String> {
             "--seed" => a.seed = value("--seed")?,
             "--verbose" => a.verbose = true,
             "--dump" => a.dump = Some(it.next().ok_or("--dump needs a directory")?.into()),
+            "--only" => {
+                a.only = Some(it.next().ok_or("--only needs a part of a kind's name")?);
+                a.old = false;
+            }
             "--kinds" => match it.next().as_deref() {
                 Some("old") => a.new = false,
                 Some("new") => a.old = false,
@@ -207,6 +214,13 @@ fn new_kinds(a: &Args) {
     for d in [PeriodicDrive::Multisine, PeriodicDrive::Triangle] {
         for n in [Nonlinearity::None, Nonlinearity::Odd, Nonlinearity::Even] {
             cases.push(NewCase::Periodic(d, n));
+        }
+    }
+    if let Some(only) = &a.only {
+        cases.retain(|c| c.name().contains(only.as_str()));
+        if cases.is_empty() {
+            eprintln!("diagnose_batch: --only {only:?} names no kind");
+            std::process::exit(2);
         }
     }
     let jobs: Vec<(usize, u64)> =
