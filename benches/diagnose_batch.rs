@@ -2,7 +2,8 @@
 //!
 //! Run with `cargo bench --bench diagnose_batch` (options after `--`: `--per-effect N`,
 //! default 40, and `--seed S`, default 1000, the first seed; `--verbose` prints every case;
-//! `--dump DIR` writes every record there as `EFFECT-SEED.csv`, for `boucwen diagnose`).
+//! `--dump DIR` writes every record there as `EFFECT-SEED.csv`, a multisine's realisations
+//! as `EFFECT-SEED-rN.csv`, for `boucwen diagnose`).
 //! For every effect of [`EFFECTS`] it draws `N` cases ([`boucwen_lab::hidden::Case`],
 //! seeds `S..S+N`), records each on the virtual bimorph and diagnoses it with the default
 //! thresholds. A diagnosis is right when:
@@ -101,7 +102,8 @@ struct Args {
 }
 
 fn args() -> Result<Args, String> {
-    let mut a = Args { per_effect: 40, seed: 1000, verbose: false, dump: None, old: true, new: true, only: None };
+    let mut a =
+        Args { per_effect: 40, seed: 1000, verbose: false, dump: None, old: true, new: true, only: None };
     let mut it = std::env::args().skip(1);
     while let Some(arg) = it.next() {
         let mut value = |name: &str| -> Result<u64, String> {
@@ -231,6 +233,14 @@ fn new_kinds(a: &Args) {
         .map(|&(i, seed)| {
             let c = &cases[i];
             let (records, truth) = c.draw(seed).map_err(|e| format!("{} {seed}: {e}", c.name()))?;
+            if let Some(dir) = &a.dump {
+                std::fs::create_dir_all(dir).map_err(|e| format!("{}: {e}", dir.display()))?;
+                for (r, rec) in records.iter().enumerate() {
+                    let part = if records.len() > 1 { format!("-r{}", r + 1) } else { String::new() };
+                    let path = dir.join(format!("{}-{seed}{part}.csv", c.name()));
+                    rec.write(&path).map_err(|e| e.to_string())?;
+                }
+            }
             let recs: Vec<Realisation> =
                 records.iter().map(|r| Realisation { u: &r.u, y: &r.y, t0: r.t0, given: None }).collect();
             let o = match diagnose::diagnose_drive(&recs, records[0].ts, &Thresholds::default()) {

@@ -91,6 +91,22 @@ fn tone_fit(x: &[f64], freq_hz: f64, ts: f64) -> (f64, f64, f64) {
     (a, b, a * xs + b * xc)
 }
 
+/// Adds `tone` to `x`, its sample `k` at time `(k - k0)·ts`: `x[k] += amp·sin(ω(k - k0)ts +
+/// phase)`, by a rotating phasor re-anchored every 1024 samples (one `sin_cos` per 1024
+/// samples instead of one `sin` per sample).
+pub fn add_tone(x: &mut [f64], tone: &Tone, ts: f64, k0: f64) {
+    let w = TAU * tone.freq_hz * ts;
+    let (dw_s, dw_c) = w.sin_cos();
+    let (mut s, mut c) = (0.0f64, 1.0f64);
+    for (k, v) in x.iter_mut().enumerate() {
+        if k % 1024 == 0 {
+            (s, c) = (w * (k as f64 - k0) + tone.phase).sin_cos();
+        }
+        *v += tone.amp * s;
+        (s, c) = (s * dw_c + c * dw_s, c * dw_c - s * dw_s);
+    }
+}
+
 /// Harmonics `1..=kmax` of `freq_hz` in `x`, measured over whole periods from the start of
 /// `x`; harmonics at or above Nyquist are left out.
 pub fn harmonics(x: &[f64], freq_hz: f64, ts: f64, kmax: usize) -> Vec<Tone> {
@@ -143,7 +159,9 @@ pub fn estimate_drive(u: &[f64], ts: f64) -> Option<f64> {
     let amp = |f: f64| tone_fit(u, f, ts).2;
     let (mut x1, mut x2) = (hi - g * (hi - lo), lo + g * (hi - lo));
     let (mut f1, mut f2) = (amp(x1), amp(x2));
-    for _ in 0..60 {
+    // Down to GOLDEN_TOL of a bin: the phase this leaves over the whole record is below
+    // 2π·GOLDEN_TOL, and the explained energy is flat to rounding closer to its peak.
+    while hi - lo > GOLDEN_TOL * df {
         if f1 > f2 {
             hi = x2;
             (x2, f2) = (x1, f1);
@@ -158,6 +176,9 @@ pub fn estimate_drive(u: &[f64], ts: f64) -> Option<f64> {
     }
     Some(0.5 * (lo + hi))
 }
+
+/// Width (in FFT bins) at which [`estimate_drive`]'s golden-section search stops.
+pub const GOLDEN_TOL: f64 = 1e-8;
 
 /// The dominant odd harmonic (order ≥ 3, below Nyquist) of `x`, if it holds at least
 /// `min_share` of `x`'s power and has an amplitude of at least `min_amp`.

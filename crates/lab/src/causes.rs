@@ -24,8 +24,9 @@
 //! A term whose model acts on the input only (a clamped drive, an extra delay) is fitted by
 //! [`crate::fit::fit_oe`] on the transformed input: the clamp's level on a grid
 //! ([`CLAMP_GRID`] of the drive's largest excursion), the best by its fitting error, then
-//! refined with the rest of the model ([`crate::terms::refine`]). A clamped output and creep
-//! are refined from the current model.
+//! refined with the rest of the model ([`crate::terms::refine`]). A clamped
+//! output is refined from the current model, from it enlarged, and from a fit to the output
+//! with its clipped samples filled in; creep from the current model.
 
 use crate::analysis::{self, Tone};
 use crate::diagnose::{Candidate, Kind, Residual, ordinal};
@@ -161,7 +162,7 @@ pub fn spec_of(host: &HostModel) -> ModelSpec {
 
 /// `model` with `spec`'s branches and drift degree (new weights and coefficients at 0),
 /// refined jointly (for a model whose terms act inside or after it, which
-/// [`crate::fit::fit_oe`] cannot fit).
+/// [`crate::fit::fit_oe`] cannot fit), with its fitting cost.
 pub fn refine_with(
     model: &TermModel,
     spec: &ModelSpec,
@@ -170,7 +171,7 @@ pub fn refine_with(
     ts: f64,
     split: usize,
     opt: &OeOptions,
-) -> Option<TermModel> {
+) -> Option<(TermModel, f64)> {
     let mut m = model.clone();
     for &order in &spec.harmonics {
         if !m.host.branches.iter().any(|b| b.order == order) {
@@ -181,11 +182,16 @@ pub fn refine_with(
         m.host.drift.resize(d + 1, 0.0);
     }
     let free = m.host_params();
-    refine(&m, &free, u, y, ts, &criterion(opt, split, ts, REFINE_ITER)).map(|r| r.0)
+    refine(&m, &free, u, y, ts, &criterion(opt, split, ts, REFINE_ITER))
 }
 
 /// The clamp levels tried, as fractions of the drive's largest excursion from 0 V.
 pub const CLAMP_GRID: [f64; 7] = [0.6, 0.7, 0.75, 0.8, 0.85, 0.9, 0.95];
+
+/// Longest stretch (s) from the fit's start-up the clamp's levels are fitted on: enough
+/// periods to average, and a cost that does not grow with the record (the refinement that
+/// follows runs on at most [`MAX_REFINE_S`]).
+pub const CLAMP_FIT_S: f64 = 10.0;
 
 /// The criterion of a refinement: `opt`'s samples from its start-up on, up to `split`, at
 /// most [`MAX_REFINE_S`] of them (`ts` the sample interval).
@@ -217,8 +223,9 @@ pub fn fit_host(
     Ok((TermModel { host: f.model, terms: model.terms.clone() }, f.rms_fit))
 }
 
-/// The current model with its drive clamped: the level from [`CLAMP_GRID`] whose fit has
-/// the lowest fitting error, refined with the rest of the model (both levels free).
+/// The current model with its drive clamped: the level from [`CLAMP_GRID`] whose fit (on at
+/// most [`CLAMP_FIT_S`] of the fitted part) has the lowest fitting error, refined with the
+/// rest of the model (both levels free).
 pub fn fit_input_clamp(
     model: &TermModel,
     spec: &ModelSpec,
@@ -232,17 +239,17 @@ pub fn fit_input_clamp(
         return None;
     }
     let peak = u[..split].iter().fold(0.0f64, |m, v| m.max(v.abs()));
-    let tried: Vec<(TermModel, f64)> = CLAMP_GRID
+    let o = capped(opt, ts);
+    let mut tried: Vec<(TermModel, f64)> = CLAMP_GRID
         .iter()
         .filter_map(|frac| {
             let mut m = model.clone();
             m.terms.input_clamp = Some([-frac * peak, frac * peak]);
-            fit_host(&m, spec, u, y, ts, split, opt).ok()
+            fit_host(&m, spec, u, y, ts, split, &o).ok()
         })
         .collect();
     // The fitting error of a clamped drive has local minima in the level: refine the best
     // few levels of the grid and keep the best.
-    let mut tried = tried;
     tried.sort_by(|a, b| a.1.total_cmp(&b.1));
     tried
         .iter()
@@ -254,6 +261,16 @@ pub fn fit_input_clamp(
         })
         .min_by(|a, b| a.1.total_cmp(&b.1))
         .map(|r| r.0)
+}
+
+/// `opt` on at most [`CLAMP_FIT_S`] from its start-up.
+fn capped(opt: &OeOptions, ts: f64) -> OeOptions {
+    let cap = opt.skip + (CLAMP_FIT_S / ts).round() as usize;
+    let samples = match opt.samples {
+        Samples::First(n) => Samples::First(n.min(cap)),
+        Samples::All => Samples::First(cap),
+    };
+    OeOptions { samples, ..opt.clone() }
 }
 
 /// Levels of the grid a clamped drive is refined from.
@@ -276,10 +293,91 @@ pub fn fit_output_clamp(
     if model.terms.output_clamp.is_some() {
         return None;
     }
-    let mut m = model.clone();
-    m.terms.output_clamp = Some(range);
-    let free = m.host_params();
-    refine(&m, &free, u, y, ts, &criterion(opt, split, ts, REFINE_ITER)).map(|r| r.0)
+    // A model fitted to the clipped output is too small to reach the clamp, and its structure
+    // may have bent to imitate the clipping's harmonics: from it, from it enlarged (its loop
+    // scaled, see [`scaled`]) so that the clamp acts, and from a fit to the output with the
+    // clipped samples filled in ([`unclipped_fit`]), the best fit.
+    let c = criterion(opt, split, ts, REFINE_ITER);
+    let mut starts: Vec<HostModel> =
+        OUTPUT_CLAMP_SCALES.iter().filter_map(|&k| scaled(&model.host, k, u, ts)).collect();
+    if model.terms.input_only() {
+        starts.extend(unclipped_fit(model, range, u, y, ts, split, opt));
+    }
+    starts
+        .into_iter()
+        .filter_map(|host| {
+            let mut m = TermModel { host, terms: model.terms.clone() };
+            m.terms.output_clamp = Some(range);
+            let free = m.host_params();
+            refine(&m, &free, u, y, ts, &c)
+        })
+        .min_by(|a, b| a.1.total_cmp(&b.1))
+        .map(|r| r.0)
+}
+
+/// A fit (with the structure search) of `model`'s host to the output with the samples on the
+/// plateaus of `range` filled in: on a plateau the output is at least as far out as the
+/// plateau, so a sample there takes the model's value where the model is beyond it. From the
+/// model enlarged by the largest of [`OUTPUT_CLAMP_SCALES`] (on at most [`CLAMP_FIT_S`] of
+/// the fitted part). `None` if a fit fails.
+pub fn unclipped_fit(
+    model: &TermModel,
+    range: [f64; 2],
+    u: &[f64],
+    y: &[f64],
+    ts: f64,
+    split: usize,
+    opt: &OeOptions,
+) -> Option<HostModel> {
+    let [lo, hi] = range;
+    let (ymin, ymax) = y.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &v| (a.min(v), b.max(v)));
+    let tol = PLATEAU_REL * (ymax - ymin);
+    let largest = OUTPUT_CLAMP_SCALES[OUTPUT_CLAMP_SCALES.len() - 1];
+    let m = TermModel { host: scaled(&model.host, largest, u, ts)?, terms: model.terms.clone() };
+    let sim = m.simulate(u, ts).ok()?;
+    let filled: Vec<f64> = y
+        .iter()
+        .zip(&sim)
+        .map(|(&v, &s)| {
+            if v >= hi - tol {
+                v.max(s)
+            } else if v <= lo + tol {
+                v.min(s)
+            } else {
+                v
+            }
+        })
+        .collect();
+    let m = fit_host(&m, &spec_of(&m.host), u, &filled, ts, split, &capped(opt, ts)).ok()?.0;
+    Some(m.host)
+}
+
+/// The scales of the starts of a clamp of the output (see [`fit_output_clamp`]).
+pub const OUTPUT_CLAMP_SCALES: [f64; 3] = [1.0, 1.25, 1.6];
+
+/// `host` with its output about its mean on `u` scaled by `k`: the gain `A1`, the branches'
+/// weights and the hysteresis `h` (A and A0 times `k`, γ and β divided by it, which scales
+/// `h` exactly), and the offset moved so that the mean stays (the hysteresis' own mean, which
+/// the offset balances, is scaled too). `None` if the model cannot run on `u`.
+pub fn scaled(host: &HostModel, k: f64, u: &[f64], ts: f64) -> Option<HostModel> {
+    let mut h = host.clone();
+    let bw = &mut h.ext.bw;
+    bw.a1 *= k;
+    bw.a *= k;
+    bw.a0 *= k;
+    bw.gamma /= k;
+    bw.beta /= k;
+    for b in &mut h.branches {
+        b.alpha_s *= k;
+        b.alpha_c *= k;
+    }
+    let before = analysis::mean(&host.simulate(u, ts).ok()?);
+    let after = analysis::mean(&h.simulate(u, ts).ok()?);
+    if h.drift.is_empty() {
+        h.drift.push(0.0);
+    }
+    h.drift[0] += before - after;
+    Some(h)
 }
 
 /// Creep states: two relaxations (started as below), their time constants kept between [`MIN_CREEP_TAU_S`] (or ten drive periods) and four

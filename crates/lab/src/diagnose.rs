@@ -60,7 +60,7 @@ use crate::causes;
 use crate::fit::{self, Averaging, FitData, FitError, HostModel, ModelSpec, OeOptions};
 use crate::record::Y_LIMIT_UM;
 use crate::steady::{self, Drive, DriveKind, NoResponse, Window, WindowError};
-use crate::terms::{TermModel, Terms};
+use crate::terms::{TermModel, Terms, refine};
 use rayon::prelude::*;
 use std::f64::consts::TAU;
 
@@ -395,7 +395,8 @@ pub fn diagnose_drive(
     match d.kind {
         DriveKind::None => Err(DiagnoseError::NoDrive { std_v: d.std_v }),
         DriveKind::Sine if records.len() == 1 => {
-            diagnose_record(u, y, ts, first.t0, first.given, th).map(|d| Outcome::Sine(Box::new(d)))
+            let plan = plan_in(u, y, ts, first.t0, w, d)?;
+            diagnose_planned(u, y, ts, &plan, th).map(|d| Outcome::Sine(Box::new(d)))
         }
         DriveKind::Sine => Err(DiagnoseError::Realisations(format!(
             "the drive is {}: a sine record is diagnosed on its own, not as one of several realisations (they are for \
@@ -1037,6 +1038,18 @@ pub fn plan(
     given: Option<(usize, usize)>,
 ) -> Result<Plan, DiagnoseError> {
     let (window, drive) = steady::steady_window(u, y, ts, given).map_err(DiagnoseError::Window)?;
+    plan_in(u, y, ts, t0, window, drive)
+}
+
+/// [`plan`] in a steady window already found (by [`steady::steady_window`] on `u`, `y`).
+pub fn plan_in(
+    u: &[f64],
+    y: &[f64],
+    ts: f64,
+    t0: f64,
+    window: Window,
+    drive: Drive,
+) -> Result<Plan, DiagnoseError> {
     let window_s = window.seconds(t0, ts);
     if drive.kind == DriveKind::None {
         return Err(DiagnoseError::NoDrive { std_v: drive.std_v });
@@ -1289,6 +1302,8 @@ fn diagnose_from(
     let mut model_rms = baseline_rms_um;
     let mut kept: Vec<(Candidate, f64, f64)> = vec![];
     let mut trials = vec![];
+    // Each candidate's model of the last round: a second start for it in the next one.
+    let mut previous: Vec<(Candidate, TermModel)> = vec![];
     for round in 0.. {
         // Every term, refitted with a search over structures and loop shapes and from the
         // current model (in parallel).
@@ -1296,7 +1311,8 @@ fn diagnose_from(
             .par_iter()
             .enumerate()
             .filter_map(|(i, c)| {
-                let m = try_term(&model, c, &data, u, y, ts, split, &opt)?;
+                let prev = previous.iter().find(|(p, _)| p == c).map(|(_, m)| m);
+                let m = try_term(&model, c, prev, &data, u, y, ts, split, &opt)?;
                 let sim = m.simulate(u, ts).ok()?;
                 if instability(m.host.ext.ar, &sim, ts).is_some() {
                     return None;
@@ -1391,6 +1407,7 @@ fn diagnose_from(
         let Some(pos) = winner else {
             break;
         };
+        previous = tried.iter().map(|(i, m, _, _)| (remaining[*i], m.clone())).collect();
         let Some((i, m, rms, term)) = tried.into_iter().nth(pos) else { break };
         if round == 0 && depth < MAX_BASELINE_REFITS {
             let stripped = without(&m, &remaining[i]).host;
@@ -1550,10 +1567,17 @@ pub const STEP_FROM_REST: f64 = 0.05;
 /// drift line by [`fit::fit_oe_on`] (on the record prepared as `data`, or on the input as the
 /// model's terms transform it), or by a joint refinement when the model has terms inside or
 /// after it; a saturation or creep by its own fit.
+///
+/// `prev` is the candidate's model of the last round. When the term kept since then acts
+/// inside or after the model (a clamp of the output, creep), a joint refinement from the
+/// current model with the new term at zero can stay where the current model's loop already
+/// imitates the term; the candidate's own fit of the last round with the kept term added is
+/// then a second start, and the start that ends with the lower fitting error is taken.
 #[allow(clippy::too_many_arguments)]
 fn try_term(
     model: &TermModel,
     c: &Candidate,
+    prev: Option<&TermModel>,
     data: &FitData<'_>,
     u: &[f64],
     y: &[f64],
@@ -1575,7 +1599,19 @@ fn try_term(
             } else if model.terms.input_only() {
                 causes::fit_host(model, &spec, u, y, ts, split, opt).ok().map(|r| r.0)
             } else {
-                causes::refine_with(model, &spec, u, y, ts, split, opt)
+                let from_model = causes::refine_with(model, &spec, u, y, ts, split, opt);
+                let warm = prev
+                    .filter(|p| p.terms != model.terms && p.host.branches.len() >= model.host.branches.len());
+                let from_prev = warm.and_then(|p| {
+                    let mut start = p.clone();
+                    start.terms = model.terms.clone();
+                    let free = start.host_params();
+                    refine(&start, &free, u, y, ts, &causes::criterion(opt, split, ts, causes::REFINE_ITER))
+                });
+                match (from_model, from_prev) {
+                    (Some(a), Some(b)) => Some(if b.1 < a.1 { b.0 } else { a.0 }),
+                    (a, b) => a.or(b).map(|r| r.0),
+                }
             }
         }
         Kind::OtherInput | Kind::InputDelay | Kind::OddDistortion | Kind::EvenDistortion => None,
@@ -1601,10 +1637,7 @@ fn drive_harmonic_part(
     let h = analysis::harmonics(&u[..n], drive.freq_hz, ts, MAX_TERM_ORDER as usize);
     let mut pure = u.to_vec();
     for t in h.iter().skip(1) {
-        let w = TAU * t.freq_hz * ts;
-        for (k, v) in pure.iter_mut().enumerate() {
-            *v -= t.amp * (w * k as f64 + t.phase).sin();
-        }
+        analysis::add_tone(&mut pure, &Tone { amp: -t.amp, ..*t }, ts, 0.0);
     }
     let sim_pure = model.simulate(&pure, ts)?;
     if instability(model.ext.ar, &sim_pure, ts).is_some() {

@@ -703,10 +703,7 @@ fn settling(y: &[f64], ts: f64, drive: &Drive, p: f64) -> usize {
             let h = analysis::harmonics(tail, drive.freq_hz, ts, kmax);
             let mut t = vec![mean; n];
             for tone in &h {
-                let w = std::f64::consts::TAU * tone.freq_hz * ts;
-                for (k, v) in t.iter_mut().enumerate() {
-                    *v += tone.amp * (w * (k as f64 - half as f64) + tone.phase).sin();
-                }
+                analysis::add_tone(&mut t, tone, ts, half as f64);
             }
             t
         }
