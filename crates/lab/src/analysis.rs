@@ -176,33 +176,10 @@ pub fn estimate_drive(u: &[f64], ts: f64) -> Option<f64> {
         return None;
     }
     let df = freqs.get(1).copied()?;
-    let amp = |f: f64| tone_fit(u, f, ts).2;
-    // Parabolic steps on the explained energy, which is smooth and concave within a bin of a
-    // tone's frequency: a few evaluations each instead of a golden-section search's dozens
-    // (each is a pass over the record). The search below if they do not settle.
-    let mut f = freqs[peak];
-    let mut d = 0.25 * df;
-    for _ in 0..PARABOLIC_STEPS {
-        if f - d <= 0.0 {
-            break;
-        }
-        let (a, b, c) = (amp(f - d), amp(f), amp(f + d));
-        let curvature = a - 2.0 * b + c;
-        if !(curvature < 0.0) {
-            break;
-        }
-        let step = 0.5 * d * (a - c) / curvature;
-        if step.abs() > d {
-            // Not bracketed yet: walk one spacing uphill.
-            f += d * step.signum();
-            continue;
-        }
-        f += step;
-        if step.abs() <= PARABOLIC_TOL * df {
-            return Some(f);
-        }
-        d = (2.0 * step.abs()).clamp(PARABOLIC_TOL * df, d);
+    if let Some(f) = parabolic_peak(u, ts, freqs[peak], df) {
+        return Some(f);
     }
+    let amp = |f: f64| tone_fit(u, f, ts).2;
     // Golden-section search of the explained energy on [f - df, f + df].
     let (mut lo, mut hi) = ((freqs[peak] - df).max(df * 0.5), freqs[peak] + df);
     let g = 0.618_033_988_749_894_9;
@@ -231,6 +208,44 @@ pub const PARABOLIC_STEPS: usize = 12;
 /// A parabolic step of [`estimate_drive`] this small (in FFT bins) ends it: the phase it leaves
 /// over the whole record is below 2π times this.
 pub const PARABOLIC_TOL: f64 = 1e-7;
+
+/// [`estimate_drive`] from a frequency known to within a bin of `u`'s (e.g. measured on
+/// part of the same drive): the FFT is skipped. Falls back to [`estimate_drive`].
+pub fn estimate_drive_near(u: &[f64], ts: f64, near_hz: f64) -> Option<f64> {
+    let df = 1.0 / (u.len() as f64 * ts);
+    parabolic_peak(u, ts, near_hz, df).or_else(|| estimate_drive(u, ts))
+}
+
+/// Parabolic steps on the energy a tone explains (smooth and concave within a bin of a
+/// tone's frequency), from `f` with the record's bin `df`: a few passes over the record
+/// instead of a golden-section search's dozens. `None` if they do not settle.
+fn parabolic_peak(u: &[f64], ts: f64, f: f64, df: f64) -> Option<f64> {
+    let amp = |f: f64| tone_fit(u, f, ts).2;
+    let mut f = f;
+    let mut d = 0.25 * df;
+    for _ in 0..PARABOLIC_STEPS {
+        if f - d <= 0.0 || !f.is_finite() {
+            return None;
+        }
+        let (a, b, c) = (amp(f - d), amp(f), amp(f + d));
+        let curvature = a - 2.0 * b + c;
+        if !(curvature < 0.0) {
+            return None;
+        }
+        let step = 0.5 * d * (a - c) / curvature;
+        if step.abs() > d {
+            // Not bracketed yet: walk one spacing uphill.
+            f += d * step.signum();
+            continue;
+        }
+        f += step;
+        if step.abs() <= PARABOLIC_TOL * df {
+            return Some(f);
+        }
+        d = (2.0 * step.abs()).clamp(PARABOLIC_TOL * df, d);
+    }
+    None
+}
 
 /// Width (in FFT bins) at which [`estimate_drive`]'s golden-section search stops.
 pub const GOLDEN_TOL: f64 = 1e-8;

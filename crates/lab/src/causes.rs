@@ -32,6 +32,7 @@ use crate::analysis::{self, Tone};
 use crate::diagnose::{Candidate, Kind, Residual, ordinal};
 use crate::fit::{self, Averaging, Branch, DelaySearch, FitError, HostModel, ModelSpec, OeOptions, Samples};
 use crate::terms::{Criterion, Param, Relaxation, TermModel, Terms, refine};
+use rayon::prelude::*;
 
 /// Share of the samples on a plateau at the output's extreme for a saturation of the output.
 pub const PLATEAU_SHARE: f64 = 0.05;
@@ -456,6 +457,10 @@ pub const MAX_DELAY_SHIFT: usize = 20;
 /// few periods.
 pub const DELAY_WINDOW_S: f64 = 1.0;
 
+/// Levenberg–Marquardt starts of each whole delay's fit in [`delay_scan`] (it ranks the
+/// delays; the best is refined).
+pub const DELAY_SCAN_STARTS: usize = 2;
+
 /// A delay found from the start-up.
 #[derive(Clone, Debug)]
 pub struct DelayScan {
@@ -486,8 +491,8 @@ pub const MIN_DELAY_SAMPLES: f64 = 2.0;
 pub const DELAY_HELD_OUT_SLACK: f64 = 1.1;
 
 /// Fits `spec` (with `model`'s input-side terms) over the step onto the drive and the
-/// [`DELAY_WINDOW_S`] after it, for every whole delay `0..=`[`MAX_DELAY_SHIFT`], refines
-/// the best with a fractional delay, and returns it with the fit without a delay (see the
+/// [`DELAY_WINDOW_S`] after it, for every other whole delay `0..=`[`MAX_DELAY_SHIFT`] and the
+/// two beside the best of those, refines the best with a fractional delay, and returns it with the fit without a delay (see the
 /// module docs). `None` if no fit succeeds.
 pub fn delay_scan(
     model: &TermModel,
@@ -507,17 +512,27 @@ pub fn delay_scan(
         samples: Samples::First(end),
         averaging: Averaging::Off,
         delay: DelaySearch::Fixed(0.0),
+        lm_starts: DELAY_SCAN_STARTS,
         ..opt.clone()
     };
-    let fits: Vec<(TermModel, f64)> = (0..=MAX_DELAY_SHIFT)
-        .filter_map(|shift| {
-            let mut m = model.clone();
-            m.terms.extra_delay = shift;
-            m.host.delay = 0.0;
-            let f = fit::fit_oe(&m.terms.input(u), y, ts, split, spec, &[], &o).ok()?;
-            Some((TermModel { host: f.model, terms: m.terms }, f.rms_fit))
-        })
+    let fit_at = |shift: usize| {
+        let mut m = model.clone();
+        m.terms.extra_delay = shift;
+        m.host.delay = 0.0;
+        // Only the criterion's samples: the transform and the fit do not touch the rest.
+        let f = fit::fit_oe(&m.terms.input(&u[..end]), &y[..end], ts, end, spec, &[], &o).ok()?;
+        Some((TermModel { host: f.model, terms: m.terms }, f.rms_fit))
+    };
+    // Every other whole delay, then the two beside the best of those.
+    let mut fits: Vec<(TermModel, f64)> =
+        (0..=MAX_DELAY_SHIFT).step_by(2).collect::<Vec<_>>().into_par_iter().filter_map(fit_at).collect();
+    let coarse_best = fits.iter().min_by(|a, b| a.1.total_cmp(&b.1))?.0.terms.extra_delay;
+    let beside: Vec<usize> = [coarse_best.checked_sub(1), Some(coarse_best + 1)]
+        .into_iter()
+        .flatten()
+        .filter(|&s| s <= MAX_DELAY_SHIFT && s % 2 == 1)
         .collect();
+    fits.extend(beside.into_par_iter().filter_map(fit_at).collect::<Vec<_>>());
     let (no_delay, without) = fits.iter().find(|f| f.0.terms.extra_delay == 0).cloned()?;
     let (best, at_best) = fits.into_iter().min_by(|a, b| a.1.total_cmp(&b.1))?;
     // The fraction of a sample: from half a sample before the best whole delay.

@@ -183,6 +183,12 @@ fn variance(x: &[f64]) -> f64 {
 
 /// Classifies the drive `u` (sampled at `ts`); see the module docs.
 pub fn classify(u: &[f64], ts: f64) -> Drive {
+    classify_near(u, ts, None)
+}
+
+/// [`classify`], with the dominant frequency known to within a bin (`near_hz`, e.g. from
+/// part of the same drive).
+fn classify_near(u: &[f64], ts: f64, near_hz: Option<f64>) -> Drive {
     let var = variance(u);
     let std_v = var.sqrt();
     let none = Drive {
@@ -198,7 +204,11 @@ pub fn classify(u: &[f64], ts: f64) -> Drive {
     if std_v < MIN_EXCITATION_STD_V || u.len() < 8 {
         return none;
     }
-    let Some(f_dom) = analysis::estimate_drive(u, ts) else { return none };
+    let f_dom = match near_hz {
+        Some(f) => analysis::estimate_drive_near(u, ts, f),
+        None => analysis::estimate_drive(u, ts),
+    };
+    let Some(f_dom) = f_dom else { return none };
     // A sine or a periodic waveform whose dominant line is its fundamental.
     let n = analysis::whole_periods(u.len(), f_dom, ts);
     let harmonics = analysis::harmonics(&u[..n], f_dom, ts, harmonic_count(f_dom, ts));
@@ -660,7 +670,10 @@ pub fn steady_window(
     if end < off && drive.is_periodic() {
         why.push_str("; whole periods of the drive");
     }
-    let drive = classify(&u[start..end], ts);
+    // The inner blocks' dominant line is within a bin of the window's (a sine's or a periodic
+    // drive's fundamental).
+    let near = matches!(drive.kind, DriveKind::Sine | DriveKind::Periodic).then_some(drive.freq_hz);
+    let drive = classify_near(&u[start..end], ts, near);
     Ok((Window { drive_on: on, start, end, given: false, why }, drive))
 }
 
@@ -880,10 +893,7 @@ pub fn noise_floor(y: &[f64], ts: f64, drive: &Drive) -> (f64, &'static str) {
             let h = analysis::harmonics(&y[..n], drive.freq_hz, ts, kmax);
             let mut rest: Vec<f64> = y[..n].to_vec();
             for t in &h {
-                let w = std::f64::consts::TAU * t.freq_hz * ts;
-                for (k, v) in rest.iter_mut().enumerate() {
-                    *v -= t.amp * (w * k as f64 + t.phase).sin();
-                }
+                analysis::add_tone(&mut rest, &Tone { amp: -t.amp, ..*t }, ts, 0.0);
             }
             (analysis::rms(&detrend_cubic(&rest)), "period_to_period")
         }
