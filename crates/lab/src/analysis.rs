@@ -229,7 +229,8 @@ fn parabolic_peak(u: &[f64], ts: f64, f: f64, df: f64) -> Option<f64> {
         }
         let (a, b, c) = (amp(f - d), amp(f), amp(f + d));
         let curvature = a - 2.0 * b + c;
-        if !(curvature < 0.0) {
+        // Concave (and not NaN) or no step.
+        if curvature.is_nan() || curvature >= 0.0 {
             return None;
         }
         let step = 0.5 * d * (a - c) / curvature;
