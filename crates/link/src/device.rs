@@ -3,10 +3,18 @@
 //!
 //! * [`Reference`]: the reference `d[k] = α·w[k]·sin(2π f k Ts)` with the raised-cosine
 //!   fade-in `w[k] = ½ − ½·cos(π k / K)` for `k < K` (`w = 1` after), computed from the
-//!   core's integer phase and `sin_cos`, so it has the same bits on every target.
+//!   core's integer phase and `sin_cos`, so it has the same bits on every target; and its
+//!   preview `d(k + τ)`, the same sine and fade-in at the fractional sample `k + τ`
+//!   (`τ` = [`ControllerParams::preview_samples`], the identified input delay, in steps of
+//!   2⁻¹⁶ sample: the phases advance by `τ` times their increments, exactly in integers).
 //! * [`Controller`]: the reference plus the core's [`Compensator`] in `f32` for up to
-//!   [`MAX_HARMONICS`] cancelled harmonics; [`Controller::step`] is one full control step
-//!   (`d[k]`, `u_f[k]`, the harmonic RLS update and `u[k]`).
+//!   [`MAX_HARMONICS`] cancelled harmonics; [`Controller::step`] is one full control step:
+//!   `d[k]` and `d(k + τ)`, the inverse `u_f[k]` of the extended model on `d(k + τ)` (a
+//!   plant that applies its input `τ` samples late then follows `d[k]`), the harmonic RLS
+//!   update on the tracking error `y[k-1] − d[k-1]`, and
+//!   `u[k] = sat(u_f[k] − Σ_n (α̂_s,n sin nθ_k + α̂_c,n cos nθ_k))`. With `τ = 0` it is the
+//!   compensator without preview, bit for bit. The repetitive controller (feature `orc`)
+//!   does not preview (its own phase lead does that job).
 //! * [`OnChipPlant`]: the core's enhanced model in `f32`, the board's stand-in actuator.
 //! * [`ClosedLoop`]: controller and on-chip plant wired together (the self-test).
 //! * [`OrcLoop`]: the reference, the odd-harmonic repetitive controller on its PI
@@ -66,7 +74,7 @@ use nalgebra::Complex;
 
 const _: () = assert!(MAX_HARMONICS == 2, "Controller has one variant per harmonic count 0..=2");
 
-/// The reference signal of a control run.
+/// The reference signal of a control run, and its preview.
 #[derive(Clone, Copy, Debug)]
 pub struct Reference {
     amplitude_um: f32,
@@ -75,12 +83,33 @@ pub struct Reference {
     fade_samples: u32,
     fade_increment: u64,
     k: u32,
+    /// The preview `τ` in 2⁻¹⁶ sample (0: none).
+    preview_q16: u32,
+    /// `τ` as phase of the reference and of the fade.
+    preview_phase: u64,
+    preview_fade_phase: u64,
+}
+
+/// `x · q / 2¹⁶` modulo 2⁶⁴ (a phase increment times a 16.16 fixed-point number of
+/// samples), exactly, with 32 × 32-bit multiplies.
+#[inline]
+fn mul_q16(x: u64, q: u32) -> u64 {
+    let (hi, lo) = (x >> 32, x & 0xFFFF_FFFF);
+    (hi * q as u64).wrapping_shl(16).wrapping_add((lo * q as u64) >> 16)
 }
 
 impl Reference {
     /// The reference of `p` at `k = 0`.
     pub fn new(p: &ControllerParams) -> Self {
         let fade_increment = if p.fade_samples > 0 { (1u64 << 63) / p.fade_samples as u64 } else { 0 };
+        // `validate` keeps τ in [0, PREVIEW_MAX_SAMPLES]; a value outside (or NaN) is no
+        // preview, and `as` saturates.
+        let tau = p.preview_samples;
+        let preview_q16 = if tau > 0.0 && tau <= limits::PREVIEW_MAX_SAMPLES {
+            (tau * 65536.0 + 0.5) as u32
+        } else {
+            0
+        };
         Self {
             amplitude_um: p.amplitude_um,
             increment: p.drive.increment(),
@@ -88,23 +117,47 @@ impl Reference {
             fade_samples: p.fade_samples,
             fade_increment,
             k: 0,
+            preview_q16,
+            preview_phase: mul_q16(p.drive.increment(), preview_q16),
+            preview_fade_phase: mul_q16(fade_increment, preview_q16),
+        }
+    }
+
+    /// The fade-in `w` at `k + q/2¹⁶` whose fade phase is `fade_phase`.
+    #[inline]
+    fn envelope(&self, k: u32, q: u32, fade_phase: u64) -> f32 {
+        if ((k as u64) << 16) + (q as u64) < ((self.fade_samples as u64) << 16) {
+            // Half a turn over the fade: w = ½ − ½·cos(π k / K).
+            let (_, c) = sin_cos::<f32>(fade_phase);
+            0.5 - 0.5 * c
+        } else {
+            1.0
         }
     }
 
     /// `d[k]`, µm; advances `k`.
     #[inline]
     pub fn next_sample(&mut self) -> f32 {
+        self.next_previewed().0
+    }
+
+    /// `d[k]` and the previewed `d(k + τ)` (the sine and the fade-in each at its
+    /// fractional sample), µm; advances `k`. Without preview both are `d[k]`, bit for bit.
+    #[inline]
+    pub fn next_previewed(&mut self) -> (f32, f32) {
+        let fade_phase = (self.k as u64).wrapping_mul(self.fade_increment);
         let (s, _) = sin_cos::<f32>(self.phase);
-        let envelope = if self.k < self.fade_samples {
-            // Half a turn over the fade: w = ½ − ½·cos(π k / K).
-            let (_, c) = sin_cos::<f32>((self.k as u64).wrapping_mul(self.fade_increment));
-            0.5 - 0.5 * c
+        let d = self.amplitude_um * self.envelope(self.k, 0, fade_phase) * s;
+        let d_ahead = if self.preview_q16 == 0 {
+            d
         } else {
-            1.0
+            let (s, _) = sin_cos::<f32>(self.phase.wrapping_add(self.preview_phase));
+            let w = self.envelope(self.k, self.preview_q16, fade_phase.wrapping_add(self.preview_fade_phase));
+            self.amplitude_um * w * s
         };
         self.phase = self.phase.wrapping_add(self.increment);
         self.k = self.k.saturating_add(1);
-        self.amplitude_um * envelope * s
+        (d, d_ahead)
     }
 }
 
@@ -172,11 +225,11 @@ impl Controller {
             }
         }
         let mut reference = self.reference;
-        let d = reference.next_sample();
+        let (d, d_ahead) = reference.next_previewed();
         let out = match &mut self.comp {
-            Comp::M0(c) => c.step(d, y_prev)?,
-            Comp::M1(c) => c.step(d, y_prev)?,
-            Comp::M2(c) => c.step(d, y_prev)?,
+            Comp::M0(c) => c.step_previewed(d, d_ahead, y_prev)?,
+            Comp::M1(c) => c.step_previewed(d, d_ahead, y_prev)?,
+            Comp::M2(c) => c.step_previewed(d, d_ahead, y_prev)?,
         };
         self.reference = reference;
         let k = self.k;
@@ -322,6 +375,9 @@ pub mod limits {
     pub const AMPLITUDE_MAX_UM: f32 = 1.0e4;
     /// Longest fade-in, samples.
     pub const FADE_MAX_SAMPLES: u32 = 10_000_000;
+    /// Longest preview `τ` of the reference, samples (the host's fit considers input delays
+    /// up to 3 samples).
+    pub const PREVIEW_MAX_SAMPLES: f32 = 16.0;
     /// Plant mode: most samples one command may skip (the plant steps that many with the
     /// last input); a command further ahead is refused.
     pub const MAX_CATCH_UP: u32 = 64;

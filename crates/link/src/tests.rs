@@ -54,6 +54,7 @@ pub(crate) fn controller_params(harmonics: &[(u32, f32, f32)]) -> ControllerPara
         rls: RlsConfig::with_forgetting(0.999, 1e-2),
         saturation: Saturation::symmetric(10.0),
         uc_max: 5.0,
+        preview_samples: 0.0,
     }
 }
 
