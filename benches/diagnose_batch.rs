@@ -101,7 +101,8 @@ struct Args {
 }
 
 fn args() -> Result<Args, String> {
-    let mut a = Args { per_effect: 40, seed: 1000, verbose: false, dump: None, old: true, new: true, only: None };
+    let mut a =
+        Args { per_effect: 40, seed: 1000, verbose: false, dump: None, old: true, new: true, only: None };
     let mut it = std::env::args().skip(1);
     while let Some(arg) = it.next() {
         let mut value = |name: &str| -> Result<u64, String> {

@@ -87,14 +87,13 @@ pub const CASES: [Case; 3] = [
 
 /// The case of `--orc`: Li et al.'s odd-harmonic repetitive controller on its PI, tuned by
 /// the core's rule from the model, on the 23 Hz plant.
-pub const ORC_CASE: Case =
-    Case {
-        name: "23 Hz, ORC on PI",
-        drive_hz: 23.0,
-        branches: &[(3, 0.10, -0.06)],
-        orc: true,
-        preview_samples: 0.0,
-    };
+pub const ORC_CASE: Case = Case {
+    name: "23 Hz, ORC on PI",
+    drive_hz: 23.0,
+    branches: &[(3, 0.10, -0.06)],
+    orc: true,
+    preview_samples: 0.0,
+};
 
 /// The self-test's actuator and controller for `case`: a plant in µm per volt with a
 /// lightly damped resonance near 70 Hz, the Bouc–Wen loop of the core's tests and the

@@ -526,7 +526,8 @@ impl Stepper {
         self.past.pop_front();
         self.past.push_back(u);
         let n = self.past.len();
-        let u_d = (1.0 - self.frac) * self.past[n - 1 - self.whole] + self.frac * self.past[n - 2 - self.whole];
+        let u_d =
+            (1.0 - self.frac) * self.past[n - 1 - self.whole] + self.frac * self.past[n - 2 - self.whole];
         self.model.step(u_d)
     }
 }
@@ -765,7 +766,8 @@ pub fn design_from_records(records: &[Record], opts: &DesignOptions) -> Result<D
     let (u_min, u_max) = (opts.safety.u_min as f64, opts.safety.u_max as f64);
     let saturation = Saturation { u_min, u_max };
     let settings = experiment::CompensationSettings::default();
-    let reference = ReferenceSpec { freq_hz: f, amplitude_um: alpha, fade_s: opts.fade_s, preview_samples: 0.0 };
+    let reference =
+        ReferenceSpec { freq_hz: f, amplitude_um: alpha, fade_s: opts.fade_s, preview_samples: 0.0 };
     let params = |m: &HostModel, h: &[HarmonicSpec<f64>]| {
         controller_params(
             &m.ext,

@@ -151,7 +151,10 @@ fn a_design_file_that_is_not_right_is_refused_whole() {
     assert_eq!(e, "version 7: this boucwen reads version 2");
     // A file from before the preview: refused, saying why and what to do.
     let e = DesignFile::parse(&text.replace("\"version\": 2", "\"version\": 1")).unwrap_err();
-    assert!(e.starts_with("version 1: designed without the actuator's input delay") && e.contains("design again"), "{e}");
+    assert!(
+        e.starts_with("version 1: designed without the actuator's input delay") && e.contains("design again"),
+        "{e}"
+    );
     let mut bad = d.clone();
     bad.board.preview_samples = 20.0;
     let e = DesignFile::parse(&bad.to_json()).unwrap_err();

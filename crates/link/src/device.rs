@@ -105,11 +105,8 @@ impl Reference {
         // `validate` keeps τ in [0, PREVIEW_MAX_SAMPLES]; a value outside (or NaN) is no
         // preview, and `as` saturates.
         let tau = p.preview_samples;
-        let preview_q16 = if tau > 0.0 && tau <= limits::PREVIEW_MAX_SAMPLES {
-            (tau * 65536.0 + 0.5) as u32
-        } else {
-            0
-        };
+        let preview_q16 =
+            if tau > 0.0 && tau <= limits::PREVIEW_MAX_SAMPLES { (tau * 65536.0 + 0.5) as u32 } else { 0 };
         Self {
             amplitude_um: p.amplitude_um,
             increment: p.drive.increment(),

@@ -118,7 +118,9 @@ impl ControllerParams {
         if !self.amplitude_um.is_finite() {
             return Err(Error::NonFinite("reference amplitude"));
         }
-        if !(self.preview_samples >= 0.0 && self.preview_samples <= super::device::limits::PREVIEW_MAX_SAMPLES) {
+        if !(self.preview_samples >= 0.0
+            && self.preview_samples <= super::device::limits::PREVIEW_MAX_SAMPLES)
+        {
             return Err(Error::OutOfRange("preview (0 to 16 samples)"));
         }
         let base = CompensatorConfig::<f32, MAX_AR, 0> {

@@ -73,7 +73,10 @@ fn every_message() -> Vec<Message> {
         Message::GetStatus,
         Message::SetController(controller_params(&[])),
         Message::SetController(controller_params(&[(3, 1.5, -0.25), (5, -0.0, f32::MIN_POSITIVE)])),
-        Message::SetController(ControllerParams { preview_samples: 1.3, ..controller_params(&[(3, 1.5, -0.25)]) }),
+        Message::SetController(ControllerParams {
+            preview_samples: 1.3,
+            ..controller_params(&[(3, 1.5, -0.25)])
+        }),
         Message::SetPlant(plant_params()),
         Message::SetOrc(OrcParams {
             kp: 0.0,
