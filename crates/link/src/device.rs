@@ -120,18 +120,6 @@ impl Reference {
         }
     }
 
-    /// The fade-in `w` at `k + q/2¹⁶` whose fade phase is `fade_phase`.
-    #[inline]
-    fn envelope(&self, k: u32, q: u32, fade_phase: u64) -> f32 {
-        if ((k as u64) << 16) + (q as u64) < ((self.fade_samples as u64) << 16) {
-            // Half a turn over the fade: w = ½ − ½·cos(π k / K).
-            let (_, c) = sin_cos::<f32>(fade_phase);
-            0.5 - 0.5 * c
-        } else {
-            1.0
-        }
-    }
-
     /// `d[k]`, µm; advances `k`.
     #[inline]
     pub fn next_sample(&mut self) -> f32 {
@@ -139,22 +127,38 @@ impl Reference {
     }
 
     /// `d[k]` and the previewed `d(k + τ)` (the sine and the fade-in each at its
-    /// fractional sample), µm; advances `k`. Without preview both are `d[k]`, bit for bit.
+    /// fractional sample), µm; advances `k`. Without preview both are `d[k]`, bit for bit,
+    /// and nothing more is computed.
     #[inline]
     pub fn next_previewed(&mut self) -> (f32, f32) {
-        let fade_phase = (self.k as u64).wrapping_mul(self.fade_increment);
         let (s, _) = sin_cos::<f32>(self.phase);
-        let d = self.amplitude_um * self.envelope(self.k, 0, fade_phase) * s;
-        let d_ahead = if self.preview_q16 == 0 {
-            d
+        let envelope = if self.k < self.fade_samples {
+            // Half a turn over the fade: w = ½ − ½·cos(π k / K).
+            let (_, c) = sin_cos::<f32>((self.k as u64).wrapping_mul(self.fade_increment));
+            0.5 - 0.5 * c
         } else {
-            let (s, _) = sin_cos::<f32>(self.phase.wrapping_add(self.preview_phase));
-            let w = self.envelope(self.k, self.preview_q16, fade_phase.wrapping_add(self.preview_fade_phase));
-            self.amplitude_um * w * s
+            1.0
         };
+        let d = self.amplitude_um * envelope * s;
+        let d_ahead = if self.preview_q16 == 0 { d } else { self.ahead() };
         self.phase = self.phase.wrapping_add(self.increment);
         self.k = self.k.saturating_add(1);
         (d, d_ahead)
+    }
+
+    /// `d(k + τ)`: the sine's and the fade's phases advanced by `τ` times their increments.
+    #[inline(never)]
+    fn ahead(&self) -> f32 {
+        let (s, _) = sin_cos::<f32>(self.phase.wrapping_add(self.preview_phase));
+        let envelope =
+            if ((self.k as u64) << 16) + (self.preview_q16 as u64) < ((self.fade_samples as u64) << 16) {
+                let fade_phase = (self.k as u64).wrapping_mul(self.fade_increment);
+                let (_, c) = sin_cos::<f32>(fade_phase.wrapping_add(self.preview_fade_phase));
+                0.5 - 0.5 * c
+            } else {
+                1.0
+            };
+        self.amplitude_um * envelope * s
     }
 }
 
