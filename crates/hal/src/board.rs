@@ -306,6 +306,7 @@ fn controller_fields(p: &ControllerParams) -> Vec<(&'static str, u64)> {
         ("saturation u_min", b(p.saturation.u_min)),
         ("saturation u_max", b(p.saturation.u_max)),
         ("uc_max", b(p.uc_max)),
+        ("preview", b(p.preview_samples)),
     ]);
     v
 }
