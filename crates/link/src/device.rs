@@ -83,11 +83,10 @@ pub struct Reference {
     fade_samples: u32,
     fade_increment: u64,
     k: u32,
-    /// The preview `τ` in 2⁻¹⁶ sample (0: none).
+    /// The preview `τ` in 2⁻¹⁶ sample (0: none). (Its phases are computed at each step
+    /// rather than kept: 4 bytes fit the struct's padding, 20 more made the ORC build's
+    /// stack overflow its 16 KiB.)
     preview_q16: u32,
-    /// `τ` as phase of the reference and of the fade.
-    preview_phase: u64,
-    preview_fade_phase: u64,
 }
 
 /// `x · q / 2¹⁶` modulo 2⁶⁴ (a phase increment times a 16.16 fixed-point number of
@@ -115,8 +114,6 @@ impl Reference {
             fade_increment,
             k: 0,
             preview_q16,
-            preview_phase: mul_q16(p.drive.increment(), preview_q16),
-            preview_fade_phase: mul_q16(fade_increment, preview_q16),
         }
     }
 
@@ -149,11 +146,12 @@ impl Reference {
     /// `d(k + τ)`: the sine's and the fade's phases advanced by `τ` times their increments.
     #[inline(never)]
     fn ahead(&self) -> f32 {
-        let (s, _) = sin_cos::<f32>(self.phase.wrapping_add(self.preview_phase));
+        let (s, _) = sin_cos::<f32>(self.phase.wrapping_add(mul_q16(self.increment, self.preview_q16)));
         let envelope =
             if ((self.k as u64) << 16) + (self.preview_q16 as u64) < ((self.fade_samples as u64) << 16) {
                 let fade_phase = (self.k as u64).wrapping_mul(self.fade_increment);
-                let (_, c) = sin_cos::<f32>(fade_phase.wrapping_add(self.preview_fade_phase));
+                let (_, c) =
+                    sin_cos::<f32>(fade_phase.wrapping_add(mul_q16(self.fade_increment, self.preview_q16)));
                 0.5 - 0.5 * c
             } else {
                 1.0
