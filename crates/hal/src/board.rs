@@ -849,7 +849,7 @@ mod tests {
         let opts = StreamOptions { watch_safe: Duration::from_secs(3), ..StreamOptions::default() };
         let safety = SafetyParams { host_timeout_ms: 100, ..SafetyParams::DEFAULT };
         let r = load(&mut link, &safety, &params(), &opts).unwrap();
-        assert_eq!(r.fields_compared, 26);
+        assert_eq!(r.fields_compared, 27);
         // A run at 15 µm: the amplitude is set for the run and verified again.
         let mut got = Vec::new();
         let mut sink = |s: &BoardSample| {
