@@ -92,32 +92,20 @@ pub fn firmware_dir() -> PathBuf {
     root().join("crates").join("firmware")
 }
 
-/// Whether the build of `features` is optimised for size (`opt-level = "s"`) rather than
-/// speed (the profile's 3): the STM32F4 build with the ORC, which at opt-level 3 overflowed
-/// its 64 KiB of flash by about 300 B once the compensator previewed its reference (it was
-/// at 64,744 B before). Its instruction counts are then those of a size-optimised build.
-pub fn size_optimised(features: &[&str]) -> bool {
-    features.contains(&"orc") && features.contains(&"stm32f4")
-}
-
 /// Builds the firmware (release, with the cargo `features`: `orc`, `stm32f4`,
 /// `emulator`) and returns the ELF's path.
 pub fn build_firmware(features: &[&str]) -> Result<PathBuf, Vec<String>> {
     check(&[&RUSTC, &CARGO, &RUST_SRC, &LLD])?;
     let target_dir = firmware_target_dir(features);
     eprintln!(
-        "building the firmware (thumbv7em-none-eabihf{}{}) in {}",
+        "building the firmware (thumbv7em-none-eabihf{}) in {}",
         if features.is_empty() { String::new() } else { format!(", features {}", features.join(",")) },
-        if size_optimised(features) { ", optimised for size" } else { "" },
         target_dir.display()
     );
     let mut cmd = Command::new(CARGO.path);
     cmd.args(["build", "--release"]);
     if !features.is_empty() {
         cmd.args(["--features", &features.join(",")]);
-    }
-    if size_optimised(features) {
-        cmd.args(["--config", "profile.release.opt-level=\"s\""]);
     }
     let status = cmd
         .current_dir(firmware_dir())
