@@ -137,7 +137,7 @@ impl Reference {
             1.0
         };
         let d = self.amplitude_um * envelope * s;
-        let d_ahead = if self.preview_q16 == 0 { d } else { self.ahead() };
+        let d_ahead = if cfg!(feature = "no-preview") || self.preview_q16 == 0 { d } else { self.ahead() };
         self.phase = self.phase.wrapping_add(self.increment);
         self.k = self.k.saturating_add(1);
         (d, d_ahead)
@@ -397,6 +397,9 @@ pub mod limits {
 
 /// Checks the numbers of a [`ControllerParams`] beyond what the compensator checks.
 fn check_controller(p: &ControllerParams) -> Result<(), Error> {
+    if cfg!(feature = "no-preview") && p.preview_samples != 0.0 {
+        return Err(Error::OutOfRange("preview (not built in: feature no-preview)"));
+    }
     let (lo, hi) = limits::SAMPLE_PERIOD_US;
     if !(lo..=hi).contains(&p.sample_period_us) {
         return Err(Error::OutOfRange("sample period (100 µs to 100 ms)"));
