@@ -574,12 +574,13 @@ fn summary(d: &DesignFile) -> String {
     let m = &d.model;
     let _ = writeln!(
         s,
-        "inverted: {}: fit {:.2} % held out ({:.4} µm RMS), A1 = {:.4} µm/V{}, invertible over {:.3}..{:.3} V (slope ≥ {:.2}·A1)",
+        "inverted: {}: fit {:.2} % held out ({:.4} µm RMS), A1 = {:.4} µm/V{}, input delay {:.3} samples (the board previews the reference by it), invertible over {:.3}..{:.3} V (slope ≥ {:.2}·A1)",
         m.inverted,
         m.fit_pct,
         m.held_out_rms_um,
         m.a1,
         m.resonance_hz.map_or(String::new(), |r| format!(", resonance {r:.1} Hz")),
+        m.delay_samples,
         m.checked_u_v[0],
         m.checked_u_v[1],
         m.min_slope_rel

@@ -5,8 +5,8 @@
 //! (`--scenario`, the paper's actuator by default). Before the run the host designs the
 //! compensator on the virtual bimorph itself (`boucwen_lab::design::design_on_plant`):
 //! 1. a record of the drive `sin(2π f t)` (`--amplitude` V, 6 s) is fitted by the
-//!    extended model (output error, an invertible loop; no input delay, the board's
-//!    compensator does not preview);
+//!    extended model with its input delay `τ` (output error, an invertible loop); the
+//!    board's compensator previews the reference by `τ` (its inverse works on `d(k + τ)`);
 //! 2. the reference amplitude α is eq. (25) on that record;
 //! 3. `u_f` alone is run in-process on the model's controller; the odd harmonic that stands
 //!    out in its tracking error is the one the board cancels, with the identified model's

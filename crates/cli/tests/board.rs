@@ -208,7 +208,7 @@ fn excite_design_load_run_on_the_board() {
     assert_eq!(d["harmonics"], serde_json::json!([3]), "{out}");
     let design_rmse = d["design_rmse_um"].as_f64().unwrap();
     let out = ok(&["board", "load", "--port", p, &s(&design)]);
-    assert!(out.contains("26 fields equal bit for bit"), "{out}");
+    assert!(out.contains("27 fields equal bit for bit"), "{out}");
     let out = ok(&[
         "board",
         "run",

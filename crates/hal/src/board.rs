@@ -306,6 +306,7 @@ fn controller_fields(p: &ControllerParams) -> Vec<(&'static str, u64)> {
         ("saturation u_min", b(p.saturation.u_min)),
         ("saturation u_max", b(p.saturation.u_max)),
         ("uc_max", b(p.uc_max)),
+        ("preview", b(p.preview_samples)),
     ]);
     v
 }
@@ -788,6 +789,7 @@ mod tests {
             rls: RlsConfig::with_forgetting(0.999, 1e-2),
             saturation: Saturation::symmetric(10.0),
             uc_max: 5.0,
+            preview_samples: 0.0,
         }
     }
 
@@ -847,7 +849,7 @@ mod tests {
         let opts = StreamOptions { watch_safe: Duration::from_secs(3), ..StreamOptions::default() };
         let safety = SafetyParams { host_timeout_ms: 100, ..SafetyParams::DEFAULT };
         let r = load(&mut link, &safety, &params(), &opts).unwrap();
-        assert_eq!(r.fields_compared, 26);
+        assert_eq!(r.fields_compared, 27);
         // A run at 15 µm: the amplitude is set for the run and verified again.
         let mut got = Vec::new();
         let mut sink = |s: &BoardSample| {

@@ -920,6 +920,7 @@ mod tests {
             rls: RlsConfig::with_forgetting(0.999, 1e-2),
             saturation: Saturation::symmetric(10.0),
             uc_max: 5.0,
+            preview_samples: 0.0,
         }
     }
 

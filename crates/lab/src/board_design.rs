@@ -10,9 +10,9 @@
 //! 2. **Structure.** With a broadband record, the structure (AR part) is fitted to it first
 //!    as a linear model (the actuator is nearly linear at small amplitude) and kept fixed
 //!    for what follows, as the sweep does; without one, the sine record alone sets it.
-//! 3. **The model.** The extended model is fitted by output error on the first half of the
-//!    first sine record at `f` (an invertible loop required; no input delay, since the
-//!    board's compensator does not preview), and its free run is judged on the second half:
+//! 3. **The model.** The extended model with its input delay `τ` (fractional samples, up to
+//!    [`fit::MAX_DELAY`]) is fitted by output error on the first half of the first sine
+//!    record at `f` (an invertible loop required), and its free run is judged on the second half:
 //!    `fit_pct = 100·(1 − ‖y − ŷ‖/‖y − ȳ‖)`. Every other record at `f` is a check: the
 //!    model's free run on it, the same percentage.
 //! 4. **Harmonics found.** The odd harmonics of `f` (3rd to 9th, below 0.45 of the sample
@@ -32,7 +32,11 @@
 //!    range under the `u` that `u_f` demands for `α`, widened as in
 //!    [`fit::operating_slope`]), when that `u` leaves the drive limits, and when the
 //!    board would refuse the parameters.
-//! 8. **The prediction.** The designed compensator tracks `α` on the prediction model for
+//!    The board's compensator previews the reference by `τ`: its inverse works on
+//!    `d(k + τ)` ([`ControllerParams::preview_samples`]), so an actuator that applies its
+//!    input `τ` samples late follows `d[k]`.
+//! 8. **The prediction.** The designed compensator tracks `α` on the prediction model (its
+//!    delay included) for
 //!    [`PREDICT_SECONDS`]: `design_rmse_um` after the settling time ([`settle_samples`]).
 //!
 //! ## The design file ([`DesignFile`], JSON)
@@ -67,7 +71,9 @@ use std::path::Path;
 /// The design file's `format`.
 pub const FORMAT: &str = "boucwen-board-design";
 /// The design file's version this code writes and reads.
-pub const VERSION: u32 = 1;
+/// Version 2 added the preview (`board.preview_samples`, `model.delay_samples`); a version
+/// 1 file (designed without the delay) is refused: design again.
+pub const VERSION: u32 = 2;
 /// Share of the input's power the fundamental must hold for a sine record.
 pub const SINE_SHARE: f64 = 0.9;
 /// Length of the prediction run by default, s.
@@ -211,6 +217,8 @@ pub struct ModelSection {
     pub gamma: f64,
     /// `β`.
     pub beta: f64,
+    /// The input delay `τ`, samples (fitted; the board previews the reference by it).
+    pub delay_samples: f64,
     /// Resonance of the structure, Hz (complex poles only).
     pub resonance_hz: Option<f64>,
     /// Fit percentage of the model (with its branches) on the held-out half of the fitted
@@ -320,6 +328,8 @@ pub struct BoardSection {
     pub saturation: [f32; 2],
     /// Bound on each cancellation amplitude, V.
     pub uc_max_v: f32,
+    /// The preview `τ` of the reference, samples (the model's input delay).
+    pub preview_samples: f32,
     /// Drive limits `[u_min, u_max]`, V.
     pub drive_limits_v: [f32; 2],
     /// Slew of the ramp to 0 V, V/s.
@@ -393,6 +403,7 @@ impl DesignFile {
             rls: RlsConfig { lambda: b.rls[0], p0: b.rls[1], p_max: b.rls[2] },
             saturation: Saturation { u_min: b.saturation[0], u_max: b.saturation[1] },
             uc_max: b.uc_max_v,
+            preview_samples: b.preview_samples,
         };
         let s = SafetyParams {
             u_min: b.drive_limits_v[0],
@@ -443,6 +454,11 @@ impl DesignFile {
         }
         match v.get("version").and_then(|x| x.as_u64()) {
             Some(x) if x == VERSION as u64 => {}
+            Some(1) => {
+                return Err(format!(
+                    "version 1: designed without the actuator's input delay, which the board now previews; this boucwen reads version {VERSION}: design again (boucwen board design)"
+                ));
+            }
             Some(x) => return Err(format!("version {x}: this boucwen reads version {VERSION}")),
             None => return Err("no \"version\"".into()),
         }
@@ -479,14 +495,44 @@ fn sine_frequency(u: &[f64], ts: f64) -> Option<f64> {
 }
 
 /// The model as a plant the host steps sample by sample (the extended model with up to
-/// [`MAX_HARMONICS`] branches, from rest).
-enum Stepper {
+/// [`MAX_HARMONICS`] branches and its input delay, from rest).
+struct Stepper {
+    model: Branches,
+    /// The input delay: whole samples and the fraction (linear interpolation, as
+    /// [`fit::delayed`]).
+    whole: usize,
+    frac: f64,
+    /// The last `whole + 2` inputs, newest last (zeros before the start).
+    past: std::collections::VecDeque<f64>,
+}
+
+enum Branches {
     M0(EnhancedParams<f64, 2, 2, 0>, <EnhancedParams<f64, 2, 2, 0> as Model<f64>>::State),
     M1(EnhancedParams<f64, 2, 2, 1>, <EnhancedParams<f64, 2, 2, 1> as Model<f64>>::State),
     M2(EnhancedParams<f64, 2, 2, 2>, <EnhancedParams<f64, 2, 2, 2> as Model<f64>>::State),
 }
 
 impl Stepper {
+    fn new(m: &HostModel, ts: f64) -> Result<Self, boucwen_core::Error> {
+        if !(m.delay >= 0.0 && m.delay <= fit::MAX_DELAY) {
+            return Err(boucwen_core::Error::OutOfRange("model delay (0 to 3 samples)"));
+        }
+        let whole = m.delay.floor() as usize;
+        let past = std::iter::repeat_n(0.0, whole + 2).collect();
+        Ok(Self { model: Branches::new(m, ts)?, whole, frac: m.delay - whole as f64, past })
+    }
+
+    fn step(&mut self, u: f64) -> f64 {
+        self.past.pop_front();
+        self.past.push_back(u);
+        let n = self.past.len();
+        let u_d =
+            (1.0 - self.frac) * self.past[n - 1 - self.whole] + self.frac * self.past[n - 2 - self.whole];
+        self.model.step(u_d)
+    }
+}
+
+impl Branches {
     fn new(m: &HostModel, ts: f64) -> Result<Self, boucwen_core::Error> {
         let drive = Oscillator::new(m.drive_hz, ts)?;
         fn p<const M: usize>(m: &HostModel, drive: Oscillator) -> EnhancedParams<f64, 2, 2, M> {
@@ -502,24 +548,24 @@ impl Stepper {
         Ok(match m.branches.len() {
             0 => {
                 let q = p::<0>(m, drive);
-                Stepper::M0(q, q.initial_state())
+                Branches::M0(q, q.initial_state())
             }
             1 => {
                 let q = p::<1>(m, drive);
-                Stepper::M1(q, q.initial_state())
+                Branches::M1(q, q.initial_state())
             }
             _ => {
                 let q = p::<2>(m, drive);
-                Stepper::M2(q, q.initial_state())
+                Branches::M2(q, q.initial_state())
             }
         })
     }
 
     fn step(&mut self, u: f64) -> f64 {
         match self {
-            Stepper::M0(p, s) => p.step(s, u),
-            Stepper::M1(p, s) => p.step(s, u),
-            Stepper::M2(p, s) => p.step(s, u),
+            Branches::M0(p, s) => p.step(s, u),
+            Branches::M1(p, s) => p.step(s, u),
+            Branches::M2(p, s) => p.step(s, u),
         }
     }
 }
@@ -652,7 +698,7 @@ pub fn design_from_records(records: &[Record], opts: &DesignOptions) -> Result<D
         samples: Samples::First(4000),
         averaging: Averaging::Off,
         structure: structure.map_or(StructureSearch::Grid, StructureSearch::Fixed),
-        delay: DelaySearch::Fixed(0.0),
+        delay: DelaySearch::Fit,
         require_invertible: true,
         ..OeOptions::default()
     };
@@ -692,6 +738,8 @@ pub fn design_from_records(records: &[Record], opts: &DesignOptions) -> Result<D
     let (prediction, pred_pct, pred_invertible, pred_rms) = if orders.is_empty() {
         (ext.clone(), ext_pct, true, ext_rms)
     } else {
+        // The delay is the extended model's (the one the board previews by).
+        let oe = OeOptions { delay: DelaySearch::Fixed(ext.delay), ..oe.clone() };
         let fit =
             fit::fit_oe(u, y, ts, split, &ModelSpec::enhanced(f, &orders), std::slice::from_ref(&ext), &oe)
                 .map_err(fit_err)?;
@@ -718,7 +766,8 @@ pub fn design_from_records(records: &[Record], opts: &DesignOptions) -> Result<D
     let (u_min, u_max) = (opts.safety.u_min as f64, opts.safety.u_max as f64);
     let saturation = Saturation { u_min, u_max };
     let settings = experiment::CompensationSettings::default();
-    let reference = ReferenceSpec { freq_hz: f, amplitude_um: alpha, fade_s: opts.fade_s };
+    let reference =
+        ReferenceSpec { freq_hz: f, amplitude_um: alpha, fade_s: opts.fade_s, preview_samples: 0.0 };
     let params = |m: &HostModel, h: &[HarmonicSpec<f64>]| {
         controller_params(
             &m.ext,
@@ -726,7 +775,7 @@ pub fn design_from_records(records: &[Record], opts: &DesignOptions) -> Result<D
             RlsConfig::with_forgetting(settings.lambda, settings.p0),
             saturation,
             settings.uc_max,
-            reference,
+            ReferenceSpec { preview_samples: m.delay, ..reference },
             ts,
         )
         .map_err(BoardDesignError::Params)
@@ -853,6 +902,7 @@ pub fn design_from_records(records: &[Record], opts: &DesignOptions) -> Result<D
         rls: [p.rls.lambda, p.rls.p0, p.rls.p_max],
         saturation: [p.saturation.u_min, p.saturation.u_max],
         uc_max_v: p.uc_max,
+        preview_samples: p.preview_samples,
         drive_limits_v: [safety.u_min, safety.u_max],
         slew_v_per_s: safety.slew_v_per_s,
         host_timeout_ms: safety.host_timeout_ms,
@@ -903,6 +953,7 @@ pub fn design_from_records(records: &[Record], opts: &DesignOptions) -> Result<D
             a0: bw.a0,
             gamma: bw.gamma,
             beta: bw.beta,
+            delay_samples: base.delay,
             resonance_hz: crate::diagnose::resonance_hz(base.ext.ar, ts),
             fit_pct: base_pct,
             held_out_rms_um: base_rms,

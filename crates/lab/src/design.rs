@@ -18,7 +18,7 @@
 //! the actuator's response at `n·f` ([`ResponseSource`], [`probe_response_on`]) are the
 //! same for `boucwen hil` and for every frequency of the sweep ([`crate::sweep`]).
 
-use crate::fit::{self, Averaging, FitError, HostModel, ModelSpec, OeOptions, Samples};
+use crate::fit::{self, Averaging, DelaySearch, FitError, HostModel, ModelSpec, OeOptions, Samples};
 use crate::{analysis, experiment};
 use boucwen_core::compensator::{HarmonicSpec, PhaseRule, Saturation};
 use boucwen_core::controllers::{OrcConfig, PiConfig};
@@ -41,6 +41,10 @@ pub struct ReferenceSpec {
     pub amplitude_um: f64,
     /// Raised-cosine fade-in, s (0: none).
     pub fade_s: f64,
+    /// The preview `τ`, samples: the identified model's input delay
+    /// ([`HostModel::delay`]); the board's inverse works on the reference `τ` samples ahead
+    /// (0: none).
+    pub preview_samples: f64,
 }
 
 /// The board's parameters for a compensator designed on the host in `f64`: the
@@ -58,7 +62,7 @@ pub struct ReferenceSpec {
 ///     bw: BoucWenParams { a1: 20.0, a: 6.0, a0: 0.5, gamma: 2.0, beta: 3.0 },
 ///     ar: [1.5, -0.6],
 /// };
-/// let reference = ReferenceSpec { freq_hz: 23.0, amplitude_um: 20.0, fade_s: 0.5 };
+/// let reference = ReferenceSpec { freq_hz: 23.0, amplitude_um: 20.0, fade_s: 0.5, preview_samples: 0.0 };
 /// let p = controller_params(&model, &[], RlsConfig::with_forgetting(0.999, 1e-2),
 ///     Saturation::symmetric(10.0), 2.0, reference, 1e-3)?;
 /// assert_eq!((p.sample_period_us, p.fade_samples, p.model.ar), (1000, 500, [1.5, -0.6, 0.0]));
@@ -122,6 +126,7 @@ pub fn controller_params<const P: usize>(
         rls: RlsConfig { lambda: f(rls.lambda), p0: f(rls.p0), p_max: f(rls.p_max) },
         saturation: Saturation { u_min: f(saturation.u_min), u_max: f(saturation.u_max) },
         uc_max: f(uc_max),
+        preview_samples: f(reference.preview_samples),
     };
     p.validate()?;
     Ok(p)
@@ -272,7 +277,11 @@ pub struct BoardDesign {
 impl fmt::Display for BoardDesign {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         let freq = self.model.drive_hz;
-        write!(f, "compensator for {freq} Hz: extended model fitted, alpha {:.2} µm, ", self.alpha_um)?;
+        write!(
+            f,
+            "compensator for {freq} Hz: extended model fitted (input delay {:.3} samples, previewed), alpha {:.2} µm, ",
+            self.model.delay, self.alpha_um
+        )?;
         match self.order {
             Some(o) => write!(f, "cancelling the harmonic of order {o} at {:.0} Hz", o as f64 * freq),
             None => f.write_str("no harmonic stands out: u_f alone"),
@@ -294,9 +303,9 @@ pub struct PlantDesign {
 }
 
 /// Designs the board's compensator against `plant`, as `boucwen hil` does:
-/// 1. a record of the drive `amplitude·sin(2π f t)` is fitted by the extended model
-///    (output error on its first half, an invertible loop; no input delay, the board's
-///    compensator does not preview);
+/// 1. a record of the drive `amplitude·sin(2π f t)` is fitted by the extended model with
+///    its input delay `τ` (output error on its first half, an invertible loop); the board's
+///    compensator previews the reference by `τ` ([`ReferenceSpec::preview_samples`]);
 /// 2. the reference amplitude α is eq. (25) on that record;
 /// 3. `u_f` alone runs on the plant (after a reset) with the board's own controller code;
 ///    the odd harmonic that stands out in its tracking error is the one cancelled, with the
@@ -319,6 +328,7 @@ where
         samples: Samples::First(4000),
         averaging: Averaging::Off,
         require_invertible: true,
+        delay: DelaySearch::Fit,
         ..OeOptions::default()
     };
     let model =
@@ -332,7 +342,12 @@ where
             RlsConfig::with_forgetting(settings.lambda, settings.p0),
             d.saturation,
             settings.uc_max,
-            ReferenceSpec { freq_hz: f, amplitude_um: alpha_um, fade_s: experiment::FADE_IN_S },
+            ReferenceSpec {
+                freq_hz: f,
+                amplitude_um: alpha_um,
+                fade_s: experiment::FADE_IN_S,
+                preview_samples: model.delay,
+            },
             ts,
         )
     };

@@ -147,8 +147,18 @@ fn refusals_name_what_is_wrong() {
 fn a_design_file_that_is_not_right_is_refused_whole() {
     let d = design_from_records(&[on_chip_record(1.0, 4.0)], &DesignOptions::default()).unwrap();
     let text = d.to_json();
-    let e = DesignFile::parse(&text.replace("\"version\": 1", "\"version\": 7")).unwrap_err();
-    assert_eq!(e, "version 7: this boucwen reads version 1");
+    let e = DesignFile::parse(&text.replace("\"version\": 2", "\"version\": 7")).unwrap_err();
+    assert_eq!(e, "version 7: this boucwen reads version 2");
+    // A file from before the preview: refused, saying why and what to do.
+    let e = DesignFile::parse(&text.replace("\"version\": 2", "\"version\": 1")).unwrap_err();
+    assert!(
+        e.starts_with("version 1: designed without the actuator's input delay") && e.contains("design again"),
+        "{e}"
+    );
+    let mut bad = d.clone();
+    bad.board.preview_samples = 20.0;
+    let e = DesignFile::parse(&bad.to_json()).unwrap_err();
+    assert!(e.starts_with("board: ") && e.contains("preview"), "{e}");
     let e = DesignFile::parse("{\"format\": \"something else\"}").unwrap_err();
     assert_eq!(e, "format \"something else\", not a boucwen board design");
     let e = DesignFile::parse("{").unwrap_err();

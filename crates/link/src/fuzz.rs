@@ -87,7 +87,7 @@ fn hostile_u32() -> impl Strategy<Value = u32> {
 
 /// A valid controller, or one with one to three fields replaced by hostile values.
 fn controller() -> impl Strategy<Value = ControllerParams> {
-    let edit = (0u8..23, hostile_f32(), hostile_u32(), any::<u64>());
+    let edit = (0u8..24, hostile_f32(), hostile_u32(), any::<u64>());
     let edits = prop_oneof![Just(Vec::new()), prop::collection::vec(edit, 1..4)];
     (edits, any::<bool>()).prop_map(|(edits, two)| {
         let mut p = controller_params(if two { &[(3, 1.0, 0.5), (5, -0.2, 0.1)] } else { &[(3, 1.0, 0.5)] });
@@ -120,6 +120,7 @@ fn controller() -> impl Strategy<Value = ControllerParams> {
                 19 => p.saturation.u_max = x,
                 20 => p.uc_max = x,
                 21 => p.harmonics.clear(),
+                22 => p.preview_samples = x,
                 _ => {
                     let _ = p.harmonics.push(HarmonicSpec { order: n % 256, response: Complex::new(x, x) });
                 }

@@ -3,7 +3,7 @@
 //! | kind | message | direction | payload (bytes) |
 //! |---|---|---|---|
 //! | `0x01` | [`Message::GetStatus`] | host → board | 0 |
-//! | `0x02` | [`Message::SetController`] | host → board | [`ControllerParams`], 95 |
+//! | `0x02` | [`Message::SetController`] | host → board | [`ControllerParams`], 99 |
 //! | `0x03` | [`Message::SetPlant`] | host → board | [`PlantParams`], 59 |
 //! | `0x04` | [`Message::Start`] | host → board | mode u8, samples u32 |
 //! | `0x05` | [`Message::Stop`] | host → board | 0 |
@@ -20,7 +20,7 @@
 //! | `0x13` | [`Message::Telemetry`] | board → host | k u32, u f32 (V), y f32 (µm), flags u8 |
 //! | `0x14` | [`Message::Safe`] | board → host | reason u8, ticks u32, period_us u32 |
 //! | `0x15` | [`Message::Diagnostics`] | board → host | [`Diagnostics`], 78 |
-//! | `0x16` | [`Message::Params`] | board → host | [`BoardParams`], 113 |
+//! | `0x16` | [`Message::Params`] | board → host | [`BoardParams`], 117 |
 //!
 //! Every multi-byte field is little-endian; `f32` is its IEEE 754 bit pattern (so values
 //! cross the link bit for bit); `u64` phase increments are the core's
@@ -72,6 +72,11 @@ pub struct ControllerParams {
     pub saturation: Saturation<f32>,
     /// Bound on each cancellation amplitude `|α̂_n|`, V.
     pub uc_max: f32,
+    /// The preview `τ`, samples (the identified model's input delay): the inverse works on
+    /// the reference `τ` samples ahead, `d(k + τ)`, the tracking error on `d[k]`
+    /// ([`boucwen_core::compensator::Compensator::step_previewed`]). 0 (no preview) to
+    /// [`super::device::limits::PREVIEW_MAX_SAMPLES`], resolved to 2⁻¹⁶ sample on the board.
+    pub preview_samples: f32,
 }
 
 impl ControllerParams {
@@ -99,6 +104,7 @@ impl ControllerParams {
     ///     rls: RlsConfig::with_forgetting(0.999, 1e-2),
     ///     saturation: Saturation::symmetric(10.0),
     ///     uc_max: 2.0,
+    ///     preview_samples: 0.0,
     /// };
     /// assert!(p.validate().is_ok());
     /// p.sample_period_us = 0;
@@ -111,6 +117,11 @@ impl ControllerParams {
         }
         if !self.amplitude_um.is_finite() {
             return Err(Error::NonFinite("reference amplitude"));
+        }
+        if !(self.preview_samples >= 0.0
+            && self.preview_samples <= super::device::limits::PREVIEW_MAX_SAMPLES)
+        {
+            return Err(Error::OutOfRange("preview (0 to 16 samples)"));
         }
         let base = CompensatorConfig::<f32, MAX_AR, 0> {
             model: self.model,
@@ -612,7 +623,7 @@ pub mod kind {
 
 /// Payload lengths of the fixed layouts.
 pub(crate) const CONTROLLER_LEN: usize =
-    5 * 4 + MAX_AR * 4 + 8 + 4 + 4 + 4 + 1 + MAX_HARMONICS * 9 + 3 * 4 + 2 * 4 + 4;
+    5 * 4 + MAX_AR * 4 + 8 + 4 + 4 + 4 + 1 + MAX_HARMONICS * 9 + 3 * 4 + 2 * 4 + 4 + 4;
 const PLANT_LEN: usize = 5 * 4 + MAX_AR * 4 + 8 + 1 + MAX_HARMONICS * 9;
 const STATUS_LEN: usize = 2 + 12 * 4;
 const ORC_LEN: usize = 5 * 4 + 2 + 4 + 1;
@@ -747,7 +758,8 @@ impl ControllerParams {
         {
             w.f32(v)?;
         }
-        w.f32(self.uc_max)
+        w.f32(self.uc_max)?;
+        w.f32(self.preview_samples)
     }
 
     pub(crate) fn read(r: &mut Reader<'_>) -> Result<Self, WireError> {
@@ -769,6 +781,7 @@ impl ControllerParams {
         let rls = RlsConfig { lambda: r.f32()?, p0: r.f32()?, p_max: r.f32()? };
         let saturation = Saturation { u_min: r.f32()?, u_max: r.f32()? };
         let uc_max = r.f32()?;
+        let preview_samples = r.f32()?;
         Ok(Self {
             model,
             drive,
@@ -779,6 +792,7 @@ impl ControllerParams {
             rls,
             saturation,
             uc_max,
+            preview_samples,
         })
     }
 }
@@ -1046,5 +1060,5 @@ impl Message {
     }
 }
 
-const _: () = assert!(CONTROLLER_LEN == 95 && PLANT_LEN == 59 && STATUS_LEN == 50 && ORC_LEN == 27);
+const _: () = assert!(CONTROLLER_LEN == 99 && PLANT_LEN == 59 && STATUS_LEN == 50 && ORC_LEN == 27);
 const _: () = assert!(SAFETY_LEN == 16 && DIAGNOSTICS_LEN == 78 && DIAGNOSTICS_LEN <= MAX_PAYLOAD);

@@ -54,6 +54,7 @@ pub(crate) fn controller_params(harmonics: &[(u32, f32, f32)]) -> ControllerPara
         rls: RlsConfig::with_forgetting(0.999, 1e-2),
         saturation: Saturation::symmetric(10.0),
         uc_max: 5.0,
+        preview_samples: 0.0,
     }
 }
 
@@ -72,6 +73,10 @@ fn every_message() -> Vec<Message> {
         Message::GetStatus,
         Message::SetController(controller_params(&[])),
         Message::SetController(controller_params(&[(3, 1.5, -0.25), (5, -0.0, f32::MIN_POSITIVE)])),
+        Message::SetController(ControllerParams {
+            preview_samples: 1.3,
+            ..controller_params(&[(3, 1.5, -0.25)])
+        }),
         Message::SetPlant(plant_params()),
         Message::SetOrc(OrcParams {
             kp: 0.0,
@@ -294,6 +299,67 @@ fn reference_fades_in_and_matches_the_core_sine_after() {
         }
     }
     assert!(worst_fade_err < 1e-5, "fade-in off by {worst_fade_err} µm");
+}
+
+#[test]
+fn the_preview_is_the_reference_at_k_plus_tau_and_none_is_bit_exact() {
+    let p = controller_params(&[]);
+    // No preview: d_ahead is d, and the controller steps as without preview, bit for bit.
+    let mut r = Reference::new(&p);
+    let mut plain = Reference::new(&p);
+    for _ in 0..700 {
+        let (d, ahead) = r.next_previewed();
+        assert_eq!((d.to_bits(), ahead.to_bits()), (plain.next_sample().to_bits(), d.to_bits()));
+    }
+    // τ = 1.3 samples: the sine and the fade-in at k + τ, within f32 rounding.
+    for tau in [1.3f32, 0.5, 3.0, limits::PREVIEW_MAX_SAMPLES] {
+        let q = ControllerParams { preview_samples: tau, ..p.clone() };
+        let mut r = Reference::new(&q);
+        let mut plain = Reference::new(&p);
+        let mut worst: f64 = 0.0;
+        for k in 0..2000u32 {
+            let (d, ahead) = r.next_previewed();
+            assert_eq!(d.to_bits(), plain.next_sample().to_bits(), "d[k] changed with the preview");
+            let t = k as f64 + tau as f64;
+            let kk = p.fade_samples as f64;
+            let w = if t < kk { 0.5 - 0.5 * (core::f64::consts::PI * t / kk).cos() } else { 1.0 };
+            let want = w * 20.0 * (core::f64::consts::TAU * 23.0e-3 * t).sin();
+            worst = worst.max((ahead as f64 - want).abs());
+        }
+        assert!(worst < 1e-4, "τ = {tau}: preview off by {worst} µm");
+    }
+    // The controller with τ = 0 is the compensator without preview.
+    let mut a = Controller::new(&p).unwrap();
+    let mut b = boucwen_core::compensator::Compensator::<f32, MAX_AR, 0>::new(
+        boucwen_core::compensator::CompensatorConfig {
+            model: p.model,
+            drive: p.drive,
+            harmonics: [],
+            rls: p.rls,
+            saturation: p.saturation,
+            uc_max: p.uc_max,
+        },
+    )
+    .unwrap();
+    let mut plain = Reference::new(&p);
+    for k in 0..600 {
+        let y = (k > 0).then_some(0.1 * k as f32);
+        let s = a.step(y).unwrap();
+        let o = b.step(plain.next_sample(), y).unwrap();
+        assert_eq!(s.out.u.to_bits(), o.u.to_bits());
+    }
+}
+
+#[test]
+fn the_preview_is_range_checked() {
+    for bad in [-0.5f32, 16.5, f32::NAN, f32::INFINITY] {
+        let p = ControllerParams { preview_samples: bad, ..controller_params(&[]) };
+        assert!(p.validate().is_err(), "τ = {bad} accepted");
+        assert!(Controller::new(&p).is_err());
+    }
+    for good in [0.0f32, 2.75, 16.0] {
+        assert!(ControllerParams { preview_samples: good, ..controller_params(&[]) }.validate().is_ok());
+    }
 }
 
 #[test]
