@@ -615,6 +615,11 @@ pub fn diagnose(
     })
 }
 
+/// Whether a model step's held-out error can be compared: its free run is stable and finite.
+fn usable(st: &ModelStep) -> bool {
+    st.check.unstable.is_none() && st.rms_um.is_finite()
+}
+
 fn kind_of(p: Parity) -> Kind {
     match p {
         Parity::Odd => Kind::OddDistortion,
@@ -935,29 +940,58 @@ impl PeriodicDiagnosis {
                 (None, Some(f)) => format!("fit {f:.1} %"),
                 (None, None) => "fit not measured".into(),
             };
-            let _ = writeln!(
-                s,
-                "  {:<48} {:.4} µm, {fit}; odd {:.1} dB, even {:.1} dB",
-                format!("{} ({})", st.label, st.model.name()),
-                st.rms_um,
-                st.odd.db,
-                st.even.db
-            );
+            let label = format!("{} ({})", st.label, st.model.name());
+            let _ = if usable(st) {
+                writeln!(
+                    s,
+                    "  {label:<48} {:.4} µm, {fit}; odd {:.1} dB, even {:.1} dB",
+                    st.rms_um, st.odd.db, st.even.db
+                )
+            } else {
+                writeln!(s, "  {label:<48} {fit}")
+            };
         }
         let (lin, sym, ext) = (&self.steps[0], &self.steps[1], &self.steps[2]);
         let pct = |a: f64, b: f64| 100.0 * (1.0 - b / a.max(1e-300));
-        let _ = writeln!(
-            s,
-            "the hysteresis loop lowers the linear model's held-out RMS by {:.0} % (odd lines {:.1} -> {:.1} dB), its \
-             asymmetric term by {:.0} % more (even lines {:.1} -> {:.1} dB)",
-            pct(lin.rms_um, sym.rms_um),
-            lin.odd.db,
-            sym.odd.db,
-            pct(sym.rms_um, ext.rms_um),
-            sym.even.db,
-            ext.even.db
-        );
-        if self.findings.is_empty() {
+        let _ = match (usable(lin), usable(sym), usable(ext)) {
+            (true, true, true) => writeln!(
+                s,
+                "the hysteresis loop lowers the linear model's held-out RMS by {:.0} % (odd lines {:.1} -> {:.1} dB), \
+                 its asymmetric term by {:.0} % more (even lines {:.1} -> {:.1} dB)",
+                pct(lin.rms_um, sym.rms_um),
+                lin.odd.db,
+                sym.odd.db,
+                pct(sym.rms_um, ext.rms_um),
+                sym.even.db,
+                ext.even.db
+            ),
+            (true, false, true) => writeln!(
+                s,
+                "the symmetric loop's free run is not stable; the extended model lowers the linear model's held-out \
+                 RMS by {:.0} % (odd lines {:.1} -> {:.1} dB, even lines {:.1} -> {:.1} dB)",
+                pct(lin.rms_um, ext.rms_um),
+                lin.odd.db,
+                ext.odd.db,
+                lin.even.db,
+                ext.even.db
+            ),
+            _ => writeln!(
+                s,
+                "not every one of these models runs stably on the held-out data: they are not compared"
+            ),
+        };
+        let base = self.baseline();
+        if self.findings.is_empty() && base.rms_um > NOISE_MULTIPLE * self.noise_um {
+            let _ = writeln!(
+                s,
+                "\nfindings: none that can be named; the {} model leaves {:.4} µm held out, {:.0} times the noise \
+                 floor, and no term tried (a cubic stiffening, a quadratic stiffness) lowered it by enough to keep: \
+                 what it misses is not one of these",
+                base.label,
+                base.rms_um,
+                base.rms_um / self.noise_um.max(1e-300)
+            );
+        } else if self.findings.is_empty() {
             let _ = writeln!(
                 s,
                 "\nfindings: none; the extended model accounts for the distortion the record shows (no term lowered \
