@@ -224,6 +224,22 @@ pub fn fit_host(
     Ok((TermModel { host: f.model, terms: model.terms.clone() }, f.rms_fit))
 }
 
+/// As [`fit_host`], with the host's delay fitted too (from `model`'s).
+pub fn fit_host_delay(
+    model: &TermModel,
+    spec: &ModelSpec,
+    u: &[f64],
+    y: &[f64],
+    ts: f64,
+    split: usize,
+    opt: &OeOptions,
+) -> Result<(TermModel, f64), FitError> {
+    let ui = model.terms.input(u);
+    let o = OeOptions { delay: DelaySearch::Fit, ..opt.clone() };
+    let f = fit::fit_oe(&ui, y, ts, split, spec, std::slice::from_ref(&model.host), &o)?;
+    Ok((TermModel { host: f.model, terms: model.terms.clone() }, f.rms_fit))
+}
+
 /// The current model with its drive clamped: the level from [`CLAMP_GRID`] whose fit (on at
 /// most [`CLAMP_FIT_S`] of the fitted part) has the lowest fitting error, refined with the
 /// rest of the model (both levels free).
@@ -246,7 +262,7 @@ pub fn fit_input_clamp(
         .filter_map(|frac| {
             let mut m = model.clone();
             m.terms.input_clamp = Some([-frac * peak, frac * peak]);
-            fit_host(&m, spec, u, y, ts, split, &o).ok()
+            fit_host_delay(&m, spec, u, y, ts, split, &o).ok()
         })
         .collect();
     // The fitting error of a clamped drive has local minima in the level: refine the best
@@ -257,7 +273,7 @@ pub fn fit_input_clamp(
         .take(CLAMP_STARTS)
         .filter_map(|(m, _)| {
             let mut free = m.host_params();
-            free.extend([Param::InputClamp(0), Param::InputClamp(1)]);
+            free.extend([Param::InputClamp(0), Param::InputClamp(1), Param::Delay]);
             refine(m, &free, u, y, ts, &criterion(opt, split, ts, REFINE_ITER))
         })
         .min_by(|a, b| a.1.total_cmp(&b.1))
