@@ -1297,7 +1297,14 @@ fn diagnose_from(
     let mut remaining = candidates(&residual, &evidence, drive_hz, ts, floor, drift_floor);
     let steady_y = &y[(plan.window.start - plan.window.drive_on).min(y.len())..];
     let drive_amp = plan.drive.harmonics.first().map_or(0.0, |t| t.amp);
-    remaining.extend(causes::candidates(&residual, &out_harmonics, steady_y, noise_um.0, (u, drive_amp)));
+    remaining.extend(causes::candidates(
+        &residual,
+        &out_harmonics,
+        steady_y,
+        noise_um.0,
+        (u, drive_amp),
+        (baseline.ext.ar, ts),
+    ));
     let mut model = TermModel::from(baseline.clone());
     let mut model_rms = baseline_rms_um;
     let mut kept: Vec<(Candidate, f64, f64)> = vec![];
