@@ -480,7 +480,29 @@ impl<P: Port> Link<P> {
         }
         Ok(None)
     }
+
+    /// [`Link::request`] for set-up exchanges, where a lost answer costs a retry and not a
+    /// sample: attempt `i` waits `timeout·2^i`, at most [`MAX_BACKOFF`] times `timeout`, so
+    /// a busy host or a board that answers late is waited for rather than given up on.
+    pub fn request_patiently<T>(
+        &mut self,
+        msg: &Message,
+        attempts: u32,
+        timeout: Duration,
+        mut accept: impl FnMut(u16, &Message) -> Option<T>,
+    ) -> Result<Option<T>, TransportError> {
+        for i in 0..attempts.max(1) {
+            let wait = timeout * (1u32 << i.min(MAX_BACKOFF.trailing_zeros()));
+            if let Some(t) = self.request(msg, 1, wait, &mut accept)? {
+                return Ok(Some(t));
+            }
+        }
+        Ok(None)
+    }
 }
+
+/// The longest wait of [`Link::request_patiently`], in units of its timeout (a power of 2).
+pub const MAX_BACKOFF: u32 = 8;
 
 /// The driver board as a [`Plant`]: each [`Plant::step`] sends `Command{k, u[k]}` and waits
 /// for `Measurement{k, y[k]}` (the board's plant mode). On QEMU's `mps2-an386` the board's
@@ -603,7 +625,7 @@ impl<P: Port> BoardPlant<P> {
         link.discard_input();
         // The answer to `Stop` is a status that says the run is over (a status that still says
         // running is not its answer).
-        link.request(&Message::Stop, attempts, timeout, |_, m| {
+        link.request_patiently(&Message::Stop, attempts, timeout, |_, m| {
             matches!(m, Message::Status(s) if s.state != RunState::Running as u8).then_some(())
         })?
         .ok_or_else(|| BoardError::NoAnswer { port: name.clone(), request: Request::Stop })?;
@@ -613,7 +635,7 @@ impl<P: Port> BoardPlant<P> {
         ] {
             let mut busy = 0;
             loop {
-                let answer = link.request(&msg, attempts, timeout, |seq, m| match m {
+                let answer = link.request_patiently(&msg, attempts, timeout, |seq, m| match m {
                     Message::Ack { kind, seq: s } if *kind == want && *s == seq => Some(Ok(())),
                     Message::Fault(f) if f.seq == seq => Some(Err((f.code, f.text.to_string()))),
                     _ => None,
@@ -626,11 +648,15 @@ impl<P: Port> BoardPlant<P> {
                     Some(Err((boucwen_link::message::FaultCode::Busy, _))) if busy + 1 < attempts => {
                         busy += 1;
                         if want == kind::START {
-                            let status =
-                                link.request(&Message::GetStatus, attempts, timeout, |_, m| match m {
+                            let status = link.request_patiently(
+                                &Message::GetStatus,
+                                attempts,
+                                timeout,
+                                |_, m| match m {
                                     Message::Status(st) => Some(*st),
                                     _ => None,
-                                })?;
+                                },
+                            )?;
                             if status.is_some_and(|st| {
                                 st.state == RunState::Running as u8 && st.mode == Mode::Plant as u8
                             }) {

@@ -749,12 +749,15 @@ mod tests {
         assert_eq!(p.range()[1], 8.0);
     }
 
+    /// 4000 samples of a unit sine at `f_hz` flattened at ±0.75.
+    fn flattened_sine(f_hz: f64, ts: f64) -> Vec<f64> {
+        (0..4000).map(|k| (std::f64::consts::TAU * f_hz * k as f64 * ts).sin().clamp(-0.75, 0.75)).collect()
+    }
+
     #[test]
     fn a_flattened_sine_has_a_series_of_odd_harmonics() {
         let ts = 1e-3;
-        let x: Vec<f64> = (0..4000)
-            .map(|k| (std::f64::consts::TAU * 10.0 * k as f64 * ts).sin().clamp(-0.75, 0.75))
-            .collect();
+        let x = flattened_sine(10.0, ts);
         let h = analysis::harmonics(&x, 10.0, ts, 9);
         assert!(clipping_series(&h), "{:?}", h.iter().map(|t| t.amp).collect::<Vec<_>>());
         let pure: Vec<f64> = (0..4000)
@@ -772,9 +775,7 @@ mod tests {
         // is raised, the 5th to 9th rolled off; taken back through the same structure, the
         // series is the drive's again.
         let ts = 1e-3;
-        let x: Vec<f64> = (0..4000)
-            .map(|k| (std::f64::consts::TAU * 20.0 * k as f64 * ts).sin().clamp(-0.75, 0.75))
-            .collect();
+        let x = flattened_sine(20.0, ts);
         let drive = analysis::harmonics(&x, 20.0, ts, 9);
         let w = std::f64::consts::TAU * 60.0 * ts;
         let r = (-0.02 * w).exp();
