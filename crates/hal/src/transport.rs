@@ -603,8 +603,9 @@ impl From<TransportError> for BoardError {
 
 impl<P: Port> BoardPlant<P> {
     /// Configures the board's plant and starts an open-ended plant run; `ts_s` is the
-    /// sample interval the plant stands for. Each answer is awaited `timeout`, `attempts`
-    /// times.
+    /// sample interval the plant stands for. A step's answer is awaited `timeout`, `attempts`
+    /// times; the set-up's (here and in [`Plant::reset`]) with the wait doubled on each
+    /// retry ([`Link::request_patiently`]).
     pub fn start(
         link: Link<P>,
         params: PlantParams,
