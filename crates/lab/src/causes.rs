@@ -248,10 +248,7 @@ pub fn fit_host(
     split: usize,
     opt: &OeOptions,
 ) -> Result<(TermModel, f64), FitError> {
-    let ui = model.terms.input(u);
-    let o = OeOptions { delay: DelaySearch::Fixed(model.host.delay), ..opt.clone() };
-    let f = fit::fit_oe(&ui, y, ts, split, spec, std::slice::from_ref(&model.host), &o)?;
-    Ok((TermModel { host: f.model, terms: model.terms.clone() }, f.rms_fit))
+    fit_host_as(model, spec, u, y, ts, split, opt, DelaySearch::Fixed(model.host.delay))
 }
 
 /// As [`fit_host`], with the host's delay fitted too (from `model`'s).
@@ -264,8 +261,23 @@ pub fn fit_host_delay(
     split: usize,
     opt: &OeOptions,
 ) -> Result<(TermModel, f64), FitError> {
+    fit_host_as(model, spec, u, y, ts, split, opt, DelaySearch::Fit)
+}
+
+/// [`fit_host`] and [`fit_host_delay`]: `spec` fitted to the transformed input with `delay`.
+#[allow(clippy::too_many_arguments)]
+fn fit_host_as(
+    model: &TermModel,
+    spec: &ModelSpec,
+    u: &[f64],
+    y: &[f64],
+    ts: f64,
+    split: usize,
+    opt: &OeOptions,
+    delay: DelaySearch,
+) -> Result<(TermModel, f64), FitError> {
     let ui = model.terms.input(u);
-    let o = OeOptions { delay: DelaySearch::Fit, ..opt.clone() };
+    let o = OeOptions { delay, ..opt.clone() };
     let f = fit::fit_oe(&ui, y, ts, split, spec, std::slice::from_ref(&model.host), &o)?;
     Ok((TermModel { host: f.model, terms: model.terms.clone() }, f.rms_fit))
 }

@@ -392,9 +392,7 @@ pub fn diagnose(
         evaluate("extended (hysteresis with its asymmetric term)", TermModel::from(extended))?,
     ];
     // The baseline: the extended model, or a simpler one that does better held out.
-    let score = |s: &ModelStep| {
-        if s.check.unstable.is_none() && s.rms_um.is_finite() { s.rms_um } else { f64::INFINITY }
-    };
+    let score = |s: &ModelStep| if usable(s) { s.rms_um } else { f64::INFINITY };
     let baseline_step = if score(&steps[2]) <= score(&steps[1]).min(score(&steps[0])) {
         2
     } else if score(&steps[1]) <= score(&steps[0]) {
