@@ -121,3 +121,37 @@ fn periodic_findings_carry_their_evidence_and_name_the_hidden_parity() {
         );
     }
 }
+
+/// A sensor's range: the drive the finding advises (`drive_within_range_v`) keeps the
+/// actuator's output inside the range when the record is measured again with it, and leaves
+/// little of it unused (the model's loop is not the actuator's, hence the margin).
+#[test]
+fn a_clipped_output_gets_the_drive_that_keeps_it_inside_the_range() {
+    for seed in 1..=4 {
+        let c = SineCase::generate(SineEffect::SensorRange, seed).expect("case");
+        let [lo, hi] = c.sensor_range.expect("a sensor range");
+        let j = outcome(&[c.record().expect("record")]).json();
+        let what = format!("sensor-range seed {seed}");
+        let f = &j["findings"][0];
+        assert_eq!(f["kind"], "saturation", "{what}: {j}");
+        let v = f["drive_within_range_v"].as_f64().unwrap_or_else(|| panic!("{what}: no advised drive: {f}"));
+        assert!(v > 0.0 && v < c.case.amplitude_v, "{what}: advised {v} V of {} V", c.case.amplitude_v);
+        let share_on = |amplitude_v: f64| {
+            let mut again = c.clone();
+            again.case.amplitude_v = amplitude_v;
+            let r = again.record().expect("record at the advised drive");
+            let settled = &r.y[r.y.len() / 5..];
+            settled.iter().filter(|&&y| y <= lo || y >= hi).count() as f64 / settled.len() as f64
+        };
+        let (at, above) = (share_on(v), share_on(1.25 * v));
+        eprintln!(
+            "{what}: {:.3} V advised of {:.3} V; on the range {at:.4} there, {above:.4} at 1.25×",
+            v, c.case.amplitude_v
+        );
+        assert_eq!(at, 0.0, "{what}: the advised drive still clips");
+        assert!(
+            above > 0.0,
+            "{what}: a quarter more than the advised drive does not reach the range: the advice wastes it"
+        );
+    }
+}

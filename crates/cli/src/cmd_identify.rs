@@ -162,7 +162,12 @@ pub fn run(a: IdentifyArgs) -> Result<(), String> {
         }
     };
     let sim = model.simulate(u, ts).map_err(|e| format!("{name}: {e}"))?;
-    let check = ModelCheck::of(&model, &sim[split..], &y[split..], ts);
+    let mut check = ModelCheck::of(&model, &sim[split..], &y[split..], ts);
+    if check.unstable.is_none() {
+        check.narrow = diagnose::amplitude_note(&model.ext.bw, model.ext.ar, ts, |k| {
+            model.simulate(&diagnose::scaled_about_mean(u, k), ts).ok()
+        });
+    }
     let fit_check = diagnose::instability(model.ext.ar, &sim[..split], ts);
     let o = Outcome {
         model: &model,
@@ -272,6 +277,7 @@ fn json(o: &Outcome, a: &IdentifyArgs) -> serde_json::Value {
         "held_out_samples": o.held_samples,
         "stable": stable,
         "unstable_reason": o.check.unstable,
+        "narrow": o.check.narrow,
         "fit_rms_um": o.fit_rms,
         "rms_um": stable.then_some(o.held_rms),
         "fit_pct": o.check.fit_pct,
@@ -337,6 +343,9 @@ fn text(o: &Outcome, name: &str, a: &IdentifyArgs, ts: f64) -> String {
                     "the drive explains less than {:.0} % of the held-out output: another input or a disturbance drives it",
                     diagnose::MIN_FIT_PCT
                 );
+            }
+            if let Some(why) = &o.check.narrow {
+                let _ = writeln!(s, "note: {why}");
             }
         }
     }

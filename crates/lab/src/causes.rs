@@ -635,6 +635,44 @@ pub fn delay_scan(
     })
 }
 
+/// Share of the output's swing a drive kept within a sensor's range leaves to spare on each
+/// side ([`drive_within_range`]).
+pub const RANGE_MARGIN: f64 = 0.1;
+
+/// The fraction `k < 1` of the drive's swing with which the output would stay inside the
+/// range of `model`'s output clamp, with [`RANGE_MARGIN`] of the swing to spare on each side:
+/// the drive a record should be measured with so that the sensor sees the whole loop. The
+/// model, its clamp removed, is simulated under the record's drive `u`; from sample `from`
+/// on, its excursion on each clamped side, measured from the middle of its swing, is scaled
+/// down to the range. The deflection is taken to scale with the drive (the loop's shape
+/// does not, hence the margin); the model is not simulated at the smaller drive, where a
+/// loop fitted at one amplitude need not hold (a fit outside the Bouc–Wen model's bounded
+/// class holds only the amplitude it was fitted at). `None` without an output clamp, or when
+/// the model's output stays inside already.
+pub fn drive_within_range(model: &TermModel, u: &[f64], ts: f64, from: usize) -> Option<f64> {
+    let [lo, hi] = model.terms.output_clamp?;
+    let mut open = model.clone();
+    open.terms.output_clamp = None;
+    let sim = open.simulate(u, ts).ok()?;
+    let tail = sim.get(from..).filter(|t| !t.is_empty())?;
+    let (a, b) = tail.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &v| (a.min(v), b.max(v)));
+    if !(a.is_finite() && b.is_finite() && b > a) {
+        return None;
+    }
+    let centre = 0.5 * (a + b);
+    let half = 0.5 * (b - a);
+    // The half-swing each side allows, the margin of the whole swing kept free.
+    let room = |limit: f64| (limit - centre).abs() / (1.0 + 2.0 * RANGE_MARGIN);
+    let mut k: f64 = 1.0;
+    if b > hi {
+        k = k.min(room(hi) / half);
+    }
+    if a < lo {
+        k = k.min(room(lo) / half);
+    }
+    (k < 1.0 && k > 0.0).then_some(k)
+}
+
 /// The cause of a saturation in words, and its level: a clamped drive (the levels in V of
 /// `u`, the series of odd harmonics it puts in the output `out`) or a clamped output (the
 /// level in µm and the share of the steady output `y` on it; `noise_um` its noise floor).
@@ -646,6 +684,7 @@ pub fn explain_saturation(
     out: &[Tone],
     y: &[f64],
     noise_um: f64,
+    within_range: Option<(f64, f64)>,
 ) -> (String, Option<(f64, &'static str)>) {
     match (c.output_range, terms.input_clamp) {
         (Some(range), _) => {
@@ -657,13 +696,24 @@ pub fn explain_saturation(
                 .map(|(v, side)| format!("{v:.3} µm (nothing {side} it)"))
                 .collect();
             let level = if range[1] < big { range[1] } else { range[0] };
+            let share = p.map_or(0.0, |p| p.share);
+            let advice = within_range.map_or(String::new(), |(k, amp)| {
+                format!(
+                    "; the rest of this diagnosis rests on the {:.0} % of the samples inside the range: a record \
+                     driven with at most {:.3} V of amplitude ({:.0} % of this drive) keeps the model's output inside \
+                     it and shows the whole loop",
+                    100.0 * (1.0 - share),
+                    k * amp,
+                    100.0 * k
+                )
+            });
             (
                 format!(
                     "saturation of the output: it sits flat at {} in {:.0} % of the samples, a sensor's range or a \
                      mechanical stop; the model should not be fitted across it: with the output clamped there the \
-                     samples beyond it no longer pull the fit; {step}",
+                     samples beyond it no longer pull the fit; {step}{advice}",
                     sides.join(" and "),
-                    100.0 * p.map_or(0.0, |p| p.share)
+                    100.0 * share
                 ),
                 Some((level, "µm")),
             )

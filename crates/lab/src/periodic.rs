@@ -544,6 +544,7 @@ pub fn diagnose(
             term_rms_um: trial.map_or(f64::NAN, |t| t.term_rms_um),
             level: Some((level, "dB above noise")),
             band_hz: band,
+            drive_within_range_v: None,
         });
     }
     // Distortion the model (with its terms) still leaves and no term removed: its share of
@@ -583,6 +584,7 @@ pub fn diagnose(
                 term_rms_um: lv.rms_um,
                 level: Some((lv.db, "dB above noise")),
                 band_hz: lv.band_hz,
+                drive_within_range_v: None,
             });
         }
     }
