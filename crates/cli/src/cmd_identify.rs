@@ -163,11 +163,7 @@ pub fn run(a: IdentifyArgs) -> Result<(), String> {
     };
     let sim = model.simulate(u, ts).map_err(|e| format!("{name}: {e}"))?;
     let mut check = ModelCheck::of(&model, &sim[split..], &y[split..], ts);
-    if check.unstable.is_none() {
-        check.narrow = diagnose::amplitude_note(&model.ext.bw, model.ext.ar, ts, |k| {
-            model.simulate(&diagnose::scaled_about_mean(u, k), ts).ok()
-        });
-    }
+    check.check_amplitudes(&model.ext.bw, model.ext.ar, u, ts, |v| model.simulate(v, ts).ok());
     let fit_check = diagnose::instability(model.ext.ar, &sim[..split], ts);
     let o = Outcome {
         model: &model,

@@ -79,7 +79,7 @@ pub fn plateaus(y: &[f64], noise_um: f64) -> Option<Plateaus> {
     if y.len() < 16 {
         return None;
     }
-    let (lo, hi) = y.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &v| (a.min(v), b.max(v)));
+    let (lo, hi) = analysis::extent(y);
     let eps = (PLATEAU_NOISE * noise_um).max(PLATEAU_REL * (hi - lo));
     let n = y.len() as f64;
     let on = |level: f64| {
@@ -407,7 +407,7 @@ pub fn unclipped_fit(
     opt: &OeOptions,
 ) -> Option<HostModel> {
     let [lo, hi] = range;
-    let (ymin, ymax) = y.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &v| (a.min(v), b.max(v)));
+    let (ymin, ymax) = analysis::extent(y);
     let tol = PLATEAU_REL * (ymax - ymin);
     let largest = OUTPUT_CLAMP_SCALES[OUTPUT_CLAMP_SCALES.len() - 1];
     let m = TermModel { host: scaled(&model.host, largest, u, ts)?, terms: model.terms.clone() };
@@ -655,7 +655,7 @@ pub fn drive_within_range(model: &TermModel, u: &[f64], ts: f64, from: usize) ->
     open.terms.output_clamp = None;
     let sim = open.simulate(u, ts).ok()?;
     let tail = sim.get(from..).filter(|t| !t.is_empty())?;
-    let (a, b) = tail.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &v| (a.min(v), b.max(v)));
+    let (a, b) = analysis::extent(tail);
     if !(a.is_finite() && b.is_finite() && b > a) {
         return None;
     }

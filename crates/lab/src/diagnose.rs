@@ -280,6 +280,21 @@ impl ModelCheck {
         let fit_pct = unstable.is_none().then(|| fit_pct(y, sim));
         ModelCheck { fit_pct, unstable, narrow: None }
     }
+
+    /// Sets [`Self::narrow`] for a stable model of loop `bw` and structure `ar`: its free run
+    /// under the record's drive `u` at [`OTHER_AMPLITUDES`] ([`amplitude_note`]).
+    pub fn check_amplitudes(
+        &mut self,
+        bw: &boucwen_core::model::BoucWenParams<f64>,
+        ar: [f64; 2],
+        u: &[f64],
+        ts: f64,
+        simulate: impl Fn(&[f64]) -> Option<Vec<f64>>,
+    ) {
+        if self.unstable.is_none() {
+            self.narrow = amplitude_note(bw, ar, ts, |k| simulate(&scaled_about_mean(u, k)));
+        }
+    }
 }
 
 /// The drive scales, about the drive's mean, at which a fitted model is run again
@@ -334,7 +349,7 @@ fn join_scales() -> String {
 }
 
 /// `u` scaled by `k` about its mean.
-pub fn scaled_about_mean(u: &[f64], k: f64) -> Vec<f64> {
+fn scaled_about_mean(u: &[f64], k: f64) -> Vec<f64> {
     let m = analysis::mean(u);
     u.iter().map(|v| m + k * (v - m)).collect()
 }
@@ -1653,11 +1668,8 @@ fn diagnose_from(
     findings.extend(delay_finding);
     findings.extend(unexplained(&model_residual, &kept, &out_harmonics, output_amplitude_um, th));
     let mut model_check = ModelCheck::of(&model.host, &model_sim[split..], &y[split..], ts);
-    if model_check.unstable.is_none() {
-        model_check.narrow = amplitude_note(&model.host.ext.bw, model.host.ext.ar, ts, |k| {
-            model.simulate(&scaled_about_mean(u, k), ts).ok()
-        });
-    }
+    model_check
+        .check_amplitudes(&model.host.ext.bw, model.host.ext.ar, u, ts, |v| model.simulate(v, ts).ok());
     let (resonance_hz, resonance_note) =
         resonance_support(res_hz, drive_hz, &out_harmonics, output_amplitude_um, &residual);
     Ok(Diagnosis {

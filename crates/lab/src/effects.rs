@@ -156,9 +156,7 @@ impl SineCase {
                 let rec = Bimorph::new(s)?.run(&u0)?;
                 let settled = &rec[rec.len() / 5..];
                 let mean = crate::analysis::mean(settled);
-                let (lo, hi) = settled
-                    .iter()
-                    .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &v| (a.min(v), b.max(v)));
+                let (lo, hi) = crate::analysis::extent(settled);
                 let top = mean + frac * (hi - mean);
                 let bottom = mean - frac * (mean - lo);
                 let range = match side {

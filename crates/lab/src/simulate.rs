@@ -170,8 +170,7 @@ pub fn run(scenario: &Scenario, drive: &Drive, out: &Path) -> Result<Summary, Si
     let y = Bimorph::new(scenario)?.run(&u)?;
     let record = Record::new(&out.display().to_string(), 0.0, ts, u, y, None)?;
     record.write(out)?;
-    let (lo, hi) =
-        record.y.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), &v| (l.min(v), h.max(v)));
+    let (lo, hi) = crate::analysis::extent(&record.y);
     let harmonics = match drive {
         Drive::Sine { freq_hz, .. } => {
             let half = &record.y[record.len() / 2..];

@@ -396,7 +396,7 @@ struct Level {
 }
 
 fn level(x: &[f64]) -> Level {
-    let (lo, hi) = x.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &v| (a.min(v), b.max(v)));
+    let (lo, hi) = analysis::extent(x);
     Level { p2p: hi - lo, mid: 0.5 * (hi + lo), std: variance(x).sqrt() }
 }
 
@@ -804,7 +804,7 @@ pub const MAX_LAG_S: f64 = 0.1;
 
 /// Checks that the output responds to the drive in the window (see [`NoResponse`]).
 pub fn check_response(u: &[f64], y: &[f64], ts: f64, drive: &Drive) -> Result<(), NoResponse> {
-    let (lo, hi) = y.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &v| (a.min(v), b.max(v)));
+    let (lo, hi) = analysis::extent(y);
     if hi.is_nan() || lo.is_nan() || hi <= lo {
         return Err(NoResponse::Constant { value_um: if lo.is_finite() { lo } else { 0.0 } });
     }
