@@ -31,10 +31,15 @@
 //! Clocks: on the on-chip actuator QEMU's virtual clock never follows the wall clock
 //! (`-icount shift=0,sleep=off`): nothing on the board waits for the host, its telemetry
 //! leaves it at the line's rate of its own clock, and QEMU's serial port holds the board
-//! when the host reads slower (with the clock following a loaded host's wall clock, the
-//! board dropped frames: 52 and 85 of 6,000 in two runs). The board's clock then runs
-//! faster than the wall's, so these runs set the host timeout to [`HOST_TIMEOUT_MS`]. With
-//! the virtual bimorph the host is in the loop (lockstep) and the clock follows the wall.
+//! when the host reads slower. The board's clock then runs at its own pace against the
+//! wall's (about a third of it on an idle 2-core machine, less under load), so these runs
+//! set the host timeout to [`HOST_TIMEOUT_MS`], and the host paces its keepalives by the
+//! board's samples as well as its own clock (`boucwen_hal::board::KEEPALIVE_SAMPLES`): on
+//! its own clock alone, a board slower than the wall had more keepalives to answer per
+//! second of its own than its line could carry beside the telemetry, and dropped frames
+//! (16 to 208 of 5,000 per stream; CI retried the streaming steps, then stopped gating on
+//! them). Nothing is retried now. With the virtual bimorph the host is in the loop
+//! (lockstep) and the clock follows the wall.
 //!
 //! With `--json` each actuator ends with a line `{actuator, samples_expected,
 //! samples_logged, design_rmse_um, run_rmse_um, inprocess_rmse_um}`, the last line being
@@ -57,17 +62,12 @@ use std::time::{Duration, Instant};
 const KILL_AFTER: usize = 1500;
 /// The crash test: how long the host has to read what it was sent before the kill.
 const DRAIN: Duration = Duration::from_millis(500);
-/// Seconds of the identification record: as long as the run. On the on-chip actuator a
-/// stream of telemetry (22 bytes a sample, 48 % of the line at 460,800 baud) depends on QEMU
-/// writing to the pseudo-terminal in time; with another build taking both of this machine's
-/// cores the board's 4 KiB transmit queue overflowed in 5 of 6 streams of 5 to 6 s (14 to
-/// 99 frames dropped, from 3.5 s on), with the virtual clock alone or following the wall's,
-/// while on the idle machine none did. A chip's USART paces itself at the line's rate.
+/// Seconds of the identification record: as long as the run.
 const EXCITE_SECONDS: &str = "5";
 /// Seconds of the run.
 const RUN_SECONDS: u32 = 5;
 /// The board's host timeout in these runs, ms: the board's ticks run on QEMU's virtual
-/// clock, which (see the module docs) can run several times faster than the wall's.
+/// clock, which (see the module docs) skips ahead of the wall's when the board idles.
 const HOST_TIMEOUT_MS: &str = "2000";
 /// The run's tolerance against the same design in-process.
 const TOLERANCE: f64 = 0.2;
@@ -154,33 +154,6 @@ fn on_chip_in_process(design: &Path, samples: u32) -> Result<f64, String> {
     Ok((sq / (samples - settle) as f64).sqrt())
 }
 
-/// Tries of a streaming step on the on-chip actuator.
-const ON_CHIP_TRIES: usize = 4;
-
-/// Runs a streaming step; on the on-chip actuator up to [`ON_CHIP_TRIES`] times. There the
-/// board's clock is QEMU's virtual clock alone, which does not wait for the host: when the
-/// host reads slower than the virtual clock runs, the board's 200 ms transmit queue fills
-/// and it drops frames (it says so, and the step fails). That is the emulator's clock, not
-/// the link or the firmware (with the host in the loop the board waits). On this 2-core
-/// machine with nothing else running a try dropped 0 to 26 of 5,000 frames (two tries of
-/// one CI run failed in a row), so one retry was not enough. Every failure stays in the
-/// log, and the last one fails the task.
-fn on_chip_retry(which: Which, step: impl Fn() -> Result<String, String>) -> Result<String, String> {
-    let tries = if which == Which::OnChip { ON_CHIP_TRIES } else { 1 };
-    let mut last = Err(String::new());
-    for i in 1..=tries {
-        last = step();
-        match &last {
-            Err(e) if i < tries => eprintln!(
-                "xtask: {e}; try {} of {tries} (QEMU's virtual clock can outrun the host reading the board)",
-                i + 1
-            ),
-            _ => break,
-        }
-    }
-    last
-}
-
 /// One actuator's excite → design → load → run; its JSON line.
 fn flow(bin: &Path, pty: &str, which: Which, dir: &Path) -> Result<serde_json::Value, String> {
     let name = if which == Which::OnChip { "on-chip" } else { "bimorph" };
@@ -193,7 +166,7 @@ fn flow(bin: &Path, pty: &str, which: Which, dir: &Path) -> Result<serde_json::V
     excite.extend(actuator);
     excite.extend(["--host-timeout-ms", HOST_TIMEOUT_MS]);
     excite.extend(["--sine", "23Hz:1V", "--seconds", EXCITE_SECONDS, "-o", &rec]);
-    on_chip_retry(which, || cli(bin, &excite))?;
+    cli(bin, &excite)?;
     let d = last_json(
         &cli(
             bin,
@@ -218,7 +191,7 @@ fn flow(bin: &Path, pty: &str, which: Which, dir: &Path) -> Result<serde_json::V
     r.extend(port);
     r.extend(actuator);
     r.extend(["--reference", "sine:23Hz:20um", "--seconds", &seconds, "-o", &run, "--json"]);
-    let out = on_chip_retry(which, || cli(bin, &r))?;
+    let out = cli(bin, &r)?;
     let v = last_json(&out, "board run")?;
     let samples = RUN_SECONDS * 1000;
     let inprocess = match which {

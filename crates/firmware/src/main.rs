@@ -49,17 +49,13 @@ pub const BAUD: u32 = 460_800;
 /// Bytes received, waiting for `idle`.
 pub static RX: ByteRing<512> = ByteRing::new();
 /// Frames to send, waiting for the transmitter: 4 KiB, 200 ms of telemetry at 1 kHz (the
-/// line drains 46 bytes per ms; the margin is for QEMU, whose serial port can fall behind
-/// its clock when the host is loaded: with 1 KiB a 6 s excitation lost up to 85 frames).
-#[cfg(all(not(feature = "orc"), feature = "stm32f4"))]
+/// line drains 46 bytes per ms). In QEMU on a loaded machine this queue overflowed (16 to
+/// 208 of 5,000 frames, with 1, 4 or 8 KiB) while the host sent its keepalives on its own
+/// clock: the board, slower than the wall, had more of them to answer per second of its
+/// own than the line could carry beside the telemetry. The host now paces them by the
+/// board's samples too (`boucwen_hal::board::KEEPALIVE_SAMPLES`).
+#[cfg(not(feature = "orc"))]
 pub static TX: ByteRing<4096> = ByteRing::new();
-/// Frames to send on QEMU's mps2-an386: 8 KiB, 400 ms. There the on-chip actuator's
-/// telemetry streams under QEMU's virtual clock alone, and QEMU's serial port, flushed by
-/// its main loop, falls behind that clock in bursts: with 4 KiB a 5 s excitation dropped
-/// 64 to 208 of 5,000 frames on an idle 2-core machine, on every try (the host's reader in
-/// a release build dropped as many). The RAM budget holds it (9.5 KiB of 16 KiB with 4 KiB).
-#[cfg(all(not(feature = "orc"), not(feature = "stm32f4")))]
-pub static TX: ByteRing<8192> = ByteRing::new();
 /// Frames to send: 2 KiB with the ORC, whose 512-sample delay line is on the stack (with
 /// 4 KiB the ORC build's static RAM and peak stack filled the 16 KiB, and the stack ran
 /// into the statics).

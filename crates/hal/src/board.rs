@@ -22,8 +22,9 @@
 //! On the board's own actuator the measurement of sample `k` arrives with the telemetry of
 //! sample `k + 1`, so the board runs one tick more than the samples logged and sample `k`
 //! is complete when the telemetry of `k + 1` arrives. The host keeps the board from
-//! declaring it lost with a [`Message::GetStatus`] every [`KEEPALIVE`] (its answer also
-//! shows the board's progress).
+//! declaring it lost with a [`Message::GetStatus`] every [`KEEPALIVE`], and no more often
+//! than every [`KEEPALIVE_SAMPLES`] of the board's samples while its telemetry comes (the
+//! answer also shows the board's progress).
 //!
 //! ## What a record keeps when things go wrong
 //! A sample goes to the sink as soon as it is complete, and the sink writes it through
@@ -49,8 +50,18 @@ use std::fmt;
 use std::io;
 use std::time::{Duration, Instant};
 
-/// How often the host shows the board it is there during a run on the board's actuator.
+/// How often the host shows the board it is there during a run on the board's actuator:
+/// at most once in this much of the host's time, and, while telemetry comes, once in
+/// [`KEEPALIVE_SAMPLES`] of the board's.
 pub const KEEPALIVE: Duration = Duration::from_millis(50);
+
+/// The board's samples between two keepalives while its telemetry comes (50 ms at 1 kHz).
+/// Each keepalive's answer takes the line's time of a few telemetry frames; paced by the
+/// host's clock alone, a board whose clock runs slower than the host's (an emulator on a
+/// loaded machine) would get more of them per second of its own than its line can answer
+/// beside the telemetry, and drop telemetry frames (61–161 of 5,000 per run in QEMU with
+/// the machine's cores otherwise busy).
+pub const KEEPALIVE_SAMPLES: u32 = 50;
 
 /// Flags the host adds to a sample's board flags ([`command_flags`] use the low five bits).
 pub mod host_flags {
@@ -588,18 +599,24 @@ fn stream<P: Port>(
     let mut last_u = 0.0f32;
     let mut last_heard = Instant::now();
     let mut next_keepalive = Instant::now() + KEEPALIVE;
+    // The telemetry heard since the last keepalive: frames, and the last sample index.
+    let (mut heard_frames, mut heard_k, mut keepalive_k) = (0u32, 0u32, 0u32);
     let mut end = None;
     while end.is_none() {
         let now = Instant::now();
-        if !host && now >= next_keepalive {
+        let board_time = heard_frames == 0 || heard_k.saturating_sub(keepalive_k) >= KEEPALIVE_SAMPLES;
+        if !host && now >= next_keepalive && board_time {
             if let Err(e) = link.send(&Message::GetStatus) {
                 end = Some(RunEnd::LinkLost(e.to_string()));
                 break;
             }
             next_keepalive = now + KEEPALIVE;
+            (heard_frames, keepalive_k) = (0, heard_k);
         }
         let silent_at = last_heard + opts.silence;
-        let deadline = if host { silent_at } else { silent_at.min(next_keepalive) };
+        // A keepalive waiting for the board's time waits for its telemetry.
+        let waits = host || (now >= next_keepalive && !board_time);
+        let deadline = if waits { silent_at } else { silent_at.min(next_keepalive) };
         let received = match link.recv(deadline) {
             Ok(r) => r,
             Err(e) => {
@@ -620,6 +637,8 @@ fn stream<P: Port>(
                 end = Some(RunEnd::SafeState(None));
             }
             Message::Telemetry { k, u, y, flags } if !host => {
+                heard_frames += 1;
+                heard_k = heard_k.max(k);
                 if let Some(prev) = pending.take().filter(|p| p.k == st.next && k > p.k) {
                     if k == prev.k + 1 {
                         let y = (flags & command_flags::Y_MISSING == 0 && y.is_finite()).then_some(y as f64);
@@ -758,7 +777,8 @@ mod tests {
     use boucwen_link::message::{MAX_AR, PlantParams};
     use boucwen_link::{Decoder, Packet};
     use nalgebra::Complex;
-    use std::sync::atomic::Ordering;
+    use std::sync::Arc;
+    use std::sync::atomic::{AtomicU32, Ordering};
 
     fn ext() -> ExtendedParams<f64, 2> {
         let w0 = std::f64::consts::TAU * 70.0e-3;
@@ -917,6 +937,64 @@ mod tests {
             .unwrap_err();
         assert_eq!(err.to_string(), "the board holds no compensator: load a design first");
         done();
+    }
+
+    /// A port that counts the `GetStatus` requests the host writes.
+    struct CountingPort {
+        inner: MemoryPort,
+        dec: Decoder,
+        get_status: Arc<AtomicU32>,
+    }
+
+    impl Port for CountingPort {
+        fn write_all(&mut self, bytes: &[u8]) -> io::Result<()> {
+            for &b in bytes {
+                if let Some(Ok(Packet { msg: Message::GetStatus, .. })) = self.dec.push(b) {
+                    self.get_status.fetch_add(1, Ordering::Relaxed);
+                }
+            }
+            self.inner.write_all(bytes)
+        }
+        fn read_timeout(&mut self, buf: &mut [u8], timeout: Duration) -> io::Result<usize> {
+            self.inner.read_timeout(buf, timeout)
+        }
+        fn name(&self) -> String {
+            self.inner.name()
+        }
+    }
+
+    #[test]
+    fn keepalives_follow_a_board_slower_than_the_host() {
+        // A board whose 1 ms samples take 10 ms of the host's (an emulator on a loaded
+        // machine): keepalives on the host's clock alone would be one every 5 of its samples.
+        let (host, dev) = MemoryPort::pair();
+        let (stop, h) = test_board::spawn(dev, Duration::from_millis(10));
+        let get_status = Arc::new(AtomicU32::new(0));
+        let port = CountingPort { inner: host, dec: Decoder::new(), get_status: get_status.clone() };
+        let mut link = Link::new(port);
+        let opts = StreamOptions { watch_safe: Duration::ZERO, ..StreamOptions::default() };
+        configure(&mut link, &Message::SetPlant(plant()), "SetPlant", &opts).unwrap();
+        let e = ExcitationParams {
+            sample_period_us: 1000,
+            fade_samples: 50,
+            tones: [Tone { drive: Oscillator::new(23.0, 1e-3).unwrap(), amplitude_v: 0.8, phase: 0 }]
+                .into_iter()
+                .collect(),
+        };
+        let before = get_status.load(Ordering::Relaxed);
+        let n = 300;
+        let t0 = Instant::now();
+        let rep =
+            excite(&mut link, &e, None, Actuator::OnChip, n, &mut |_: &BoardSample| Ok(()), &opts).unwrap();
+        let wall = t0.elapsed();
+        assert_eq!((&rep.end, rep.samples_logged), (&RunEnd::Complete, n), "{rep:?}");
+        let sent = get_status.load(Ordering::Relaxed) - before;
+        // One per KEEPALIVE_SAMPLES of the board's, and the requests around the run (the
+        // status at its end, at most three tries).
+        assert!(sent <= n / KEEPALIVE_SAMPLES + 4, "{sent} GetStatus in {wall:?} for {n} samples");
+        assert!(wall >= Duration::from_millis(n as u64 * 9), "the board ticked faster than asked: {wall:?}");
+        stop.store(true, Ordering::Relaxed);
+        h.join().unwrap();
     }
 
     #[test]
