@@ -25,8 +25,10 @@
 //! ## The steady window ([`steady_window`])
 //! 1. **Steady drive.** `u` is cut into blocks of the smallest length (from a ladder of
 //!    lengths growing by 20 %) over which the peak-to-peak value of the busy blocks is the
-//!    same within [`LEVEL_TOLERANCE`] for at least three quarters of them; for a periodic
-//!    drive that is about one period. Consecutive blocks whose peak-to-peak value and
+//!    same within [`LEVEL_TOLERANCE`] for nine tenths of them, and between the first busy
+//!    block and the last [`MIN_BUSY_INSIDE`] are busy (a square wave's blocks shorter than
+//!    its half period sit idle between busy ones); for a periodic drive that is about one
+//!    period. Consecutive blocks whose peak-to-peak value and
 //!    mid-level agree within [`LEVEL_TOLERANCE`] (of the peak-to-peak value) form runs;
 //!    idle parts, steps and amplitude changes end a run, and a gradual fade is trimmed off
 //!    against the run's median. The longest run is the steady drive. If no block length
@@ -69,6 +71,10 @@ pub const LEVEL_TOLERANCE: f64 = 0.05;
 pub const NOISE_LEVEL_TOLERANCE: f64 = 0.15;
 /// A block is busy when its peak-to-peak value reaches this fraction of the largest.
 pub const BUSY_REL: f64 = 0.25;
+/// Of the blocks from the first busy one to the last, the share that must be busy for the
+/// block length to be compared at all (a square wave's blocks shorter than its half period
+/// sit idle between busy ones; an idle lead-in or lead-out lies outside).
+pub const MIN_BUSY_INSIDE: f64 = 0.9;
 /// The output has settled when a period's RMS departure from the periodic part is within
 /// this factor of the settled periods' median.
 pub const SETTLED_FACTOR: f64 = 2.0;
@@ -439,8 +445,9 @@ impl Compare {
 }
 
 /// The block length and levels of the steady-drive search (step 1 of the module docs): the
-/// smallest length at which three quarters of the neighbouring busy blocks have the same
-/// peak-to-peak value.
+/// smallest length at which nine tenths of the neighbouring busy blocks have the same
+/// peak-to-peak value and mid-level, and [`MIN_BUSY_INSIDE`] of the blocks between the first
+/// busy one and the last are busy.
 fn blocks(u: &[f64]) -> (usize, Vec<Level>, Compare) {
     let n = u.len();
     let mut w = 8usize;
@@ -448,6 +455,17 @@ fn blocks(u: &[f64]) -> (usize, Vec<Level>, Compare) {
         let levels: Vec<Level> = u.chunks_exact(w).map(level).collect();
         let big = levels.iter().map(|l| l.p2p).fold(0.0, f64::max);
         let busy = |l: &Level| l.p2p >= BUSY_REL * big;
+        // Blocks shorter than the drive's flat parts (a square wave's half period) are idle
+        // between busy ones: only the busy blocks would be compared, and they agree.
+        let (Some(first), Some(last)) = (levels.iter().position(busy), levels.iter().rposition(busy)) else {
+            w = (w as f64 * 1.2).ceil() as usize;
+            continue;
+        };
+        let inside = &levels[first..=last];
+        if (inside.iter().filter(|l| busy(l)).count() as f64) < MIN_BUSY_INSIDE * inside.len() as f64 {
+            w = (w as f64 * 1.2).ceil() as usize;
+            continue;
+        }
         let pairs: Vec<bool> = levels
             .windows(2)
             .filter(|p| busy(&p[0]) && busy(&p[1]))
@@ -1032,6 +1050,26 @@ mod tests {
             (0..8000).map(|k| (TAU * (1.0 + 5.0 * k as f64 * ts) * k as f64 * ts).sin()).collect();
         assert_eq!(classify(&chirp, ts).kind, DriveKind::Aperiodic, "{}", classify(&chirp, ts).describe());
         assert_eq!(classify(&vec![0.3; 1000], ts).kind, DriveKind::None);
+    }
+
+    #[test]
+    fn a_square_wave_is_steady_over_its_whole_drive() {
+        // Blocks shorter than a half period sit flat between busy ones: the square waves
+        // below were called aperiodic from a window of a few blocks before.
+        let ts = 1e-3;
+        for (f, seconds, lead) in [(4.0, 10.0, 0), (5.0, 5.0, 0), (23.0, 10.0, 0), (5.0, 10.0, 1500)] {
+            let n = (seconds / ts) as usize;
+            let mut u = vec![0.0; lead];
+            u.extend((0..n).map(|k| (TAU * f * k as f64 * ts).sin().signum()));
+            let y: Vec<f64> = u.iter().map(|v| 8.0 * v).collect();
+            let (w, drive) = steady_window(&u, &y, ts, None).unwrap();
+            assert_eq!(drive.kind, DriveKind::Periodic, "{f} Hz: {}", drive.describe());
+            assert!((drive.freq_hz - f).abs() < 1e-2 * f, "{f} Hz: {}", drive.describe());
+            let covered = (w.end - w.drive_on) as f64 / n as f64;
+            // The edge to within a tenth of a period.
+            let edge = (w.drive_on as f64 - lead as f64).abs() * ts * f;
+            assert!(covered > 0.9 && edge <= 0.1, "{f} Hz: {w:?}");
+        }
     }
 
     #[test]
