@@ -570,12 +570,19 @@ pub fn diagnose(
                 output_rel: lv.rms_um / out_rms.max(1e-300),
                 cause: format!(
                     "unexplained {} distortion: the model's held-out residual holds {:.3} µm at the {} lines ({:.0} % \
-                     of its power at the lines the drive leaves free, {:.1} dB above their noise{}); no term removed \
-                     it by enough to keep",
+                     of its power at the {}, {:.1} dB above their noise{}); no term removed it by enough to keep",
                     p.as_str(),
                     lv.rms_um,
                     p.as_str(),
                     100.0 * share,
+                    if p == Parity::Odd && odd_drive {
+                        // A triangle's or a square's own harmonics: the model's response to
+                        // them is what is off, not distortion the record shows by itself.
+                        "odd and even lines; the odd ones are the drive's own harmonics, so this is what the model \
+                         gets wrong of its response to them"
+                    } else {
+                        "lines the drive leaves free"
+                    },
                     lv.db,
                     lv.band_hz.map_or(String::new(), |b| format!(", {:.1} to {:.1} Hz", b[0], b[1]))
                 ),

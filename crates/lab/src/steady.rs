@@ -243,22 +243,33 @@ fn classify_near(u: &[f64], ts: f64, near_hz: Option<f64>) -> Drive {
     }
     // A repeating waveform whose dominant line is not its fundamental: a multisine.
     let aperiodic = Drive { kind: DriveKind::Aperiodic, freq_hz: f_dom, ..none.clone() };
-    let Some(period) = autocorrelation_period(u) else { return aperiodic };
-    let p = period.round() as usize;
-    let periods = u.len() / p.max(1);
-    if p < 4 || periods < 2 {
-        return aperiodic;
-    }
-    // The average period and its lines.
+    // The first lag whose average period holds the drive: a near-repeat comes first where
+    // the lines almost line up (10 and 17 Hz at 0.294 s, the period being 1 s).
     let mean = analysis::mean(u);
-    let mut avg = vec![0.0; p];
-    for k in 0..periods * p {
-        avg[k % p] += (u[k] - mean) / periods as f64;
-    }
-    let periodic_share = (variance(&avg) / variance(&u[..periods * p]).max(1e-300)).min(1.0);
-    if periodic_share < HARMONIC_SHARE {
+    let average = |p: usize| -> Option<(usize, Vec<f64>, f64)> {
+        let periods = u.len() / p.max(1);
+        if p < 4 || periods < 2 {
+            return None;
+        }
+        let mut avg = vec![0.0; p];
+        for k in 0..periods * p {
+            avg[k % p] += (u[k] - mean) / periods as f64;
+        }
+        let share = (variance(&avg) / variance(&u[..periods * p]).max(1e-300)).min(1.0);
+        (share >= HARMONIC_SHARE).then_some((periods, avg, share))
+    };
+    // Of the lags that hold it, the first as good as the best (a lag a little short of a
+    // slow period, as 1.95 s of an amplitude modulation's 2 s, holds most of it too).
+    let held: Vec<(usize, (usize, Vec<f64>, f64))> = autocorrelation_periods(u)
+        .into_iter()
+        .take(MAX_PERIOD_CANDIDATES)
+        .map(|period| period.round() as usize)
+        .filter_map(|p| average(p).map(|a| (p, a)))
+        .collect();
+    let top = held.iter().map(|(_, a)| a.2).fold(0.0, f64::max);
+    let Some((p, (periods, avg, periodic_share))) = held.into_iter().find(|(_, a)| a.2 >= top - 0.005) else {
         return aperiodic;
-    }
+    };
     let mut buf: Vec<Complex<f64>> = avg.iter().map(|&v| Complex::new(v, 0.0)).collect();
     FftPlanner::new().plan_fft_forward(p).process(&mut buf);
     let amps: Vec<f64> = buf[..p / 2 + 1].iter().map(|c| 2.0 * c.norm() / p as f64).collect();
@@ -272,7 +283,8 @@ fn classify_near(u: &[f64], ts: f64, near_hz: Option<f64>) -> Drive {
         .collect();
     let f_base = 1.0 / (p as f64 * ts);
     let first_share = amps.get(1).map_or(0.0, |a| a * a / 2.0) / variance(&avg).max(1e-300);
-    let kind = if lines.len() >= 3 && first_share < 0.5 { DriveKind::Multisine } else { DriveKind::Periodic };
+    // Two tones or more whose common period's own line is weak: a multisine.
+    let kind = if lines.len() >= 2 && first_share < 0.5 { DriveKind::Multisine } else { DriveKind::Periodic };
     let harmonics = if kind == DriveKind::Periodic {
         analysis::harmonics(&u[..periods * p], f_base, ts, (p / 2).clamp(1, DRIVE_HARMONICS))
     } else {
@@ -300,9 +312,17 @@ fn classify_near(u: &[f64], ts: f64, near_hz: Option<f64>) -> Drive {
 /// its normalised autocorrelation, after it has fallen below 0.5, that reaches
 /// [`PERIODIC_CORRELATION`] and is at least 0.9 of the highest peak up to half the length.
 pub fn autocorrelation_period(x: &[f64]) -> Option<f64> {
+    autocorrelation_periods(x).first().copied()
+}
+
+/// Lags tried as a drive's period, in order ([`autocorrelation_periods`]).
+pub const MAX_PERIOD_CANDIDATES: usize = 64;
+
+/// Every such peak, in order of lag (the candidates for [`autocorrelation_period`]).
+pub fn autocorrelation_periods(x: &[f64]) -> Vec<f64> {
     let n = x.len();
     if n < 16 {
-        return None;
+        return vec![];
     }
     let m = analysis::mean(x);
     let len = (2 * n).next_power_of_two();
@@ -320,21 +340,25 @@ pub fn autocorrelation_period(x: &[f64]) -> Option<f64> {
     planner.plan_fft_inverse(len).process(&mut buf);
     let c0 = buf[0].re;
     if c0.is_nan() || c0 <= 0.0 {
-        return None;
+        return vec![];
     }
     let half = n / 2;
     let r: Vec<f64> = (0..=half).map(|k| buf[k].re / c0 * n as f64 / (n - k) as f64).collect();
-    let dip = r.iter().position(|&v| v < 0.5)?;
+    let Some(dip) = r.iter().position(|&v| v < 0.5) else { return vec![] };
     let best = r[dip..].iter().copied().fold(f64::NEG_INFINITY, f64::max);
     if best < PERIODIC_CORRELATION {
-        return None;
+        return vec![];
     }
-    let k = (dip.max(1)..half).find(|&k| r[k] >= 0.9 * best && r[k] >= r[k - 1] && r[k] >= r[k + 1])?;
-    // Parabolic refinement of the peak.
-    let (a, b, c) = (r[k - 1], r[k], r[k + 1]);
-    let denom = a - 2.0 * b + c;
-    let shift = if denom.abs() > 1e-300 { (0.5 * (a - c) / denom).clamp(-0.5, 0.5) } else { 0.0 };
-    Some(k as f64 + shift)
+    (dip.max(1)..half)
+        .filter(|&k| r[k] >= 0.9 * best && r[k] >= r[k - 1] && r[k] >= r[k + 1])
+        .map(|k| {
+            // Parabolic refinement of the peak.
+            let (a, b, c) = (r[k - 1], r[k], r[k + 1]);
+            let denom = a - 2.0 * b + c;
+            let shift = if denom.abs() > 1e-300 { (0.5 * (a - c) / denom).clamp(-0.5, 0.5) } else { 0.0 };
+            k as f64 + shift
+        })
+        .collect()
 }
 
 /// The part of a record analysed.
@@ -692,6 +716,15 @@ pub fn steady_window(
     // drive's fundamental).
     let near = matches!(drive.kind, DriveKind::Sine | DriveKind::Periodic).then_some(drive.freq_hz);
     let drive = classify_near(&u[start..end], ts, near);
+    if let (true, Some(p)) = (drive.is_periodic(), drive.period_samples) {
+        // A "period" the window does not hold twice is a piece of a drive that does not
+        // repeat (a random staircase's one step): the whole record says what it is.
+        let whole = classify(&u[..n], ts);
+        if ((end - start) as f64) < 2.0 * p && !whole.is_periodic() {
+            let why = "the whole record: no part of it repeats over two periods".to_string();
+            return Ok((Window { drive_on: 0, start: 0, end: n, given: false, why }, whole));
+        }
+    }
     Ok((Window { drive_on: on, start, end, given: false, why }, drive))
 }
 
@@ -1043,6 +1076,13 @@ mod tests {
         assert_eq!(d.period_samples, Some(1024.0));
         assert_eq!(d.lines.len(), 40);
         assert!(d.lines.iter().all(|l| l.0 % 2 == 1));
+        // Two tones, 10 and 17 Hz: their lines almost line up at 0.294 s, but the period is 1 s.
+        let two: Vec<f64> = (0..10_000)
+            .map(|k| 0.7 * (TAU * 10.0 * k as f64 * ts).sin() + 0.5 * (TAU * 17.0 * k as f64 * ts).sin())
+            .collect();
+        let d = classify(&two, ts);
+        assert_eq!((d.kind, d.period_samples), (DriveKind::Multisine, Some(1000.0)), "{}", d.describe());
+        assert_eq!(d.lines.iter().map(|l| l.0).collect::<Vec<_>>(), vec![10, 17]);
         // Noise and a chirp are aperiodic; a constant is none.
         let noise: Vec<f64> = (0..8000).map(|_| rnd() - 0.5).collect();
         assert_eq!(classify(&noise, ts).kind, DriveKind::Aperiodic);
@@ -1050,6 +1090,24 @@ mod tests {
             (0..8000).map(|k| (TAU * (1.0 + 5.0 * k as f64 * ts) * k as f64 * ts).sin()).collect();
         assert_eq!(classify(&chirp, ts).kind, DriveKind::Aperiodic, "{}", classify(&chirp, ts).describe());
         assert_eq!(classify(&vec![0.3; 1000], ts).kind, DriveKind::None);
+    }
+
+    #[test]
+    fn a_random_staircase_is_aperiodic_not_one_step_s_period() {
+        // Levels held 0.5 s each: one step's block looked like a period of 2.5 Hz before.
+        let ts = 1e-3;
+        let mut g = 11u64;
+        let u: Vec<f64> = (0..20)
+            .flat_map(|_| {
+                g = g.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+                let v = (g >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0;
+                std::iter::repeat_n(v, 500)
+            })
+            .collect();
+        let y: Vec<f64> = u.iter().map(|v| 8.0 * v).collect();
+        let (w, drive) = steady_window(&u, &y, ts, None).unwrap();
+        assert_eq!(drive.kind, DriveKind::Aperiodic, "{} in {w:?}", drive.describe());
+        assert_eq!((w.start, w.end), (0, u.len()));
     }
 
     #[test]
