@@ -246,7 +246,15 @@ fn classify_near(u: &[f64], ts: f64, near_hz: Option<f64>) -> Drive {
     // The first lag whose average period holds the drive: a near-repeat comes first where
     // the lines almost line up (10 and 17 Hz at 0.294 s, the period being 1 s).
     let mean = analysis::mean(u);
-    let average = |p: usize| -> Option<(usize, Vec<f64>, f64)> {
+    // A lag `p`: whole periods in the record, the average period, the share of the
+    // variance it holds.
+    struct Average {
+        p: usize,
+        periods: usize,
+        avg: Vec<f64>,
+        share: f64,
+    }
+    let average = |p: usize| -> Option<Average> {
         let periods = u.len() / p.max(1);
         if p < 4 || periods < 2 {
             return None;
@@ -256,18 +264,19 @@ fn classify_near(u: &[f64], ts: f64, near_hz: Option<f64>) -> Drive {
             avg[k % p] += (u[k] - mean) / periods as f64;
         }
         let share = (variance(&avg) / variance(&u[..periods * p]).max(1e-300)).min(1.0);
-        (share >= HARMONIC_SHARE).then_some((periods, avg, share))
+        (share >= HARMONIC_SHARE).then_some(Average { p, periods, avg, share })
     };
     // Of the lags that hold it, the first as good as the best (a lag a little short of a
     // slow period, as 1.95 s of an amplitude modulation's 2 s, holds most of it too).
-    let held: Vec<(usize, (usize, Vec<f64>, f64))> = autocorrelation_periods(u)
+    let held: Vec<Average> = autocorrelation_periods(u)
         .into_iter()
         .take(MAX_PERIOD_CANDIDATES)
-        .map(|period| period.round() as usize)
-        .filter_map(|p| average(p).map(|a| (p, a)))
+        .filter_map(|period| average(period.round() as usize))
         .collect();
-    let top = held.iter().map(|(_, a)| a.2).fold(0.0, f64::max);
-    let Some((p, (periods, avg, periodic_share))) = held.into_iter().find(|(_, a)| a.2 >= top - 0.005) else {
+    let top = held.iter().map(|a| a.share).fold(0.0, f64::max);
+    let Some(Average { p, periods, avg, share: periodic_share }) =
+        held.into_iter().find(|a| a.share >= top - 0.005)
+    else {
         return aperiodic;
     };
     let mut buf: Vec<Complex<f64>> = avg.iter().map(|&v| Complex::new(v, 0.0)).collect();
