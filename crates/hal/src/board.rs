@@ -824,6 +824,17 @@ mod tests {
         }
     }
 
+    /// A 0.8 V sine at 23 Hz, sampled at 1 kHz, faded in over `fade_samples`.
+    fn sine_excitation(fade_samples: u32) -> ExcitationParams {
+        ExcitationParams {
+            sample_period_us: 1000,
+            fade_samples,
+            tones: [Tone { drive: Oscillator::new(23.0, 1e-3).unwrap(), amplitude_v: 0.8, phase: 0 }]
+                .into_iter()
+                .collect(),
+        }
+    }
+
     /// A board (the firmware's `Device`) in a thread, ticking every millisecond.
     fn board() -> (Link<MemoryPort>, impl FnOnce()) {
         let (host, dev) = MemoryPort::pair();
@@ -910,13 +921,7 @@ mod tests {
     #[test]
     fn excite_drives_the_excitation_and_records_the_response() {
         let (mut link, done) = board();
-        let e = ExcitationParams {
-            sample_period_us: 1000,
-            fade_samples: 200,
-            tones: [Tone { drive: Oscillator::new(23.0, 1e-3).unwrap(), amplitude_v: 0.8, phase: 0 }]
-                .into_iter()
-                .collect(),
-        };
+        let e = sine_excitation(200);
         let mut got = Vec::new();
         let mut sink = |s: &BoardSample| {
             got.push(*s);
@@ -974,13 +979,7 @@ mod tests {
         let mut link = Link::new(port);
         let opts = StreamOptions { watch_safe: Duration::ZERO, ..StreamOptions::default() };
         configure(&mut link, &Message::SetPlant(plant()), "SetPlant", &opts).unwrap();
-        let e = ExcitationParams {
-            sample_period_us: 1000,
-            fade_samples: 50,
-            tones: [Tone { drive: Oscillator::new(23.0, 1e-3).unwrap(), amplitude_v: 0.8, phase: 0 }]
-                .into_iter()
-                .collect(),
-        };
+        let e = sine_excitation(50);
         let before = get_status.load(Ordering::Relaxed);
         let n = 300;
         let t0 = Instant::now();

@@ -490,15 +490,13 @@ fn blocks(u: &[f64]) -> (usize, Vec<Level>, Compare) {
         let busy = |l: &Level| l.p2p >= BUSY_REL * big;
         // Blocks shorter than the drive's flat parts (a square wave's half period) are idle
         // between busy ones: only the busy blocks would be compared, and they agree.
-        let (Some(first), Some(last)) = (levels.iter().position(busy), levels.iter().rposition(busy)) else {
-            w = (w as f64 * 1.2).ceil() as usize;
-            continue;
+        let busy_inside = match (levels.iter().position(busy), levels.iter().rposition(busy)) {
+            (Some(first), Some(last)) => {
+                let inside = &levels[first..=last];
+                inside.iter().filter(|l| busy(l)).count() as f64 >= MIN_BUSY_INSIDE * inside.len() as f64
+            }
+            _ => false,
         };
-        let inside = &levels[first..=last];
-        if (inside.iter().filter(|l| busy(l)).count() as f64) < MIN_BUSY_INSIDE * inside.len() as f64 {
-            w = (w as f64 * 1.2).ceil() as usize;
-            continue;
-        }
         let pairs: Vec<bool> = levels
             .windows(2)
             .filter(|p| busy(&p[0]) && busy(&p[1]))
@@ -508,7 +506,11 @@ fn blocks(u: &[f64]) -> (usize, Vec<Level>, Compare) {
                     && (p[0].mid - p[1].mid).abs() <= LEVEL_TOLERANCE * s
             })
             .collect();
-        if pairs.len() >= 2 && big > 0.0 && pairs.iter().filter(|&&b| b).count() * 10 >= pairs.len() * 9 {
+        if busy_inside
+            && pairs.len() >= 2
+            && big > 0.0
+            && pairs.iter().filter(|&&b| b).count() * 10 >= pairs.len() * 9
+        {
             return (w, levels, Compare::Peaks);
         }
         w = (w as f64 * 1.2).ceil() as usize;
@@ -728,10 +730,12 @@ pub fn steady_window(
     if let (true, Some(p)) = (drive.is_periodic(), drive.period_samples) {
         // A "period" the window does not hold twice is a piece of a drive that does not
         // repeat (a random staircase's one step): the whole record says what it is.
-        let whole = classify(&u[..n], ts);
-        if ((end - start) as f64) < 2.0 * p && !whole.is_periodic() {
-            let why = "the whole record: no part of it repeats over two periods".to_string();
-            return Ok((Window { drive_on: 0, start: 0, end: n, given: false, why }, whole));
+        if ((end - start) as f64) < 2.0 * p {
+            let whole = classify(&u[..n], ts);
+            if !whole.is_periodic() {
+                let why = "the whole record: no part of it repeats over two periods".to_string();
+                return Ok((Window { drive_on: 0, start: 0, end: n, given: false, why }, whole));
+            }
         }
     }
     Ok((Window { drive_on: on, start, end, given: false, why }, drive))
