@@ -54,27 +54,51 @@ pub fn whole_periods(n: usize, freq_hz: f64, ts: f64) -> usize {
         return n;
     }
     let per = 1.0 / (freq_hz * ts);
-    let periods = (n as f64 / per).floor();
+    // Half a sample of slack: a period estimated a hair long must not lose the last period.
+    let periods = ((n as f64 + 0.49) / per).floor();
     if periods < 1.0 { n } else { ((periods * per).round() as usize).min(n) }
 }
 
+/// The period of `freq_hz` in samples when it is a whole number of them (as a drive
+/// generated on the sampling clock has: the periods of `n` samples, cut at whole samples,
+/// drift by at most a quarter of a sample from the drive's) and `n` samples hold two.
+pub fn whole_sample_period(freq_hz: f64, ts: f64, n: usize) -> Option<usize> {
+    let p = 1.0 / (freq_hz * ts);
+    let whole = p.round();
+    let periods = n as f64 / p;
+    (p.is_finite() && whole >= 2.0 && periods >= 2.0 && (p - whole).abs() * periods <= 0.25)
+        .then_some(whole as usize)
+}
+
+/// The average over the whole periods of `p` samples in `x`, and how many there are.
+pub fn average_period(x: &[f64], p: usize) -> (Vec<f64>, usize) {
+    let m = x.len() / p.max(1);
+    let mut avg = vec![0.0; p];
+    for k in 0..m * p {
+        avg[k % p] += x[k] / m.max(1) as f64;
+    }
+    (avg, m)
+}
+
 /// The component of `x` at `freq_hz` (sample 0 is `t = 0`), by least squares on
-/// `sin`/`cos` (2×2 normal equations, exact also off whole periods).
+/// `sin`, `cos` and a constant (exact also off whole periods, and under an offset: a
+/// unipolar drive's mean leaks into a tone fitted without one).
 pub fn tone(x: &[f64], freq_hz: f64, ts: f64) -> Tone {
     let (a, b, _) = tone_fit(x, freq_hz, ts);
     // a sin + b cos = amp sin(θ + phase)
     Tone { freq_hz, amp: (a * a + b * b).sqrt(), phase: b.atan2(a) }
 }
 
-/// Least-squares `a sin + b cos` at `freq_hz`, and the energy it explains (`a·Σx sin + b·Σx cos`,
-/// which, unlike the amplitude, is largest exactly at a pure tone's frequency).
+/// Least-squares `a sin + b cos + m` at `freq_hz`, and the energy the tone explains beyond the
+/// constant (`a·Σx̃ sin + b·Σx̃ cos` with `x̃` the data less its mean; unlike the amplitude,
+/// it is largest exactly at a pure tone's frequency).
 fn tone_fit(x: &[f64], freq_hz: f64, ts: f64) -> (f64, f64, f64) {
     let w = TAU * freq_hz * ts;
     // Four rotating phasors, one per sample of a group of four (independent chains the CPU
     // runs side by side), each turned by 4ω per group and re-anchored every 1024 samples.
     const L: usize = 4;
     let (dw_s, dw_c) = (L as f64 * w).sin_cos();
-    let (mut ss, mut cc, mut sc, mut xs, mut xc) = ([0.0; L], [0.0; L], [0.0; L], [0.0; L], [0.0; L]);
+    let [mut ss, mut cc, mut sc, mut xs, mut xc, mut s1, mut c1] = [[0.0; L]; 7];
     let (mut s, mut c) = ([0.0f64; L], [1.0f64; L]);
     let groups = x.len() / L;
     for (g, chunk) in x.chunks_exact(L).enumerate() {
@@ -90,16 +114,14 @@ fn tone_fit(x: &[f64], freq_hz: f64, ts: f64) -> (f64, f64, f64) {
             sc[j] += s[j] * c[j];
             xs[j] += v * s[j];
             xc[j] += v * c[j];
+            s1[j] += s[j];
+            c1[j] += c[j];
             (s[j], c[j]) = (s[j] * dw_c + c[j] * dw_s, c[j] * dw_c - s[j] * dw_s);
         }
     }
-    let (mut ss, mut cc, mut sc, mut xs, mut xc) = (
-        ss.iter().sum::<f64>(),
-        cc.iter().sum::<f64>(),
-        sc.iter().sum::<f64>(),
-        xs.iter().sum::<f64>(),
-        xc.iter().sum::<f64>(),
-    );
+    let sum = |a: [f64; L]| a.iter().sum::<f64>();
+    let (mut ss, mut cc, mut sc, mut xs, mut xc, mut s1, mut c1) =
+        (sum(ss), sum(cc), sum(sc), sum(xs), sum(xc), sum(s1), sum(c1));
     for (k, &v) in x.iter().enumerate().skip(groups * L) {
         let (s, c) = (w * k as f64).sin_cos();
         ss += s * s;
@@ -107,12 +129,22 @@ fn tone_fit(x: &[f64], freq_hz: f64, ts: f64) -> (f64, f64, f64) {
         sc += s * c;
         xs += v * s;
         xc += v * c;
+        s1 += s;
+        c1 += c;
     }
+    let n = x.len() as f64;
+    if n == 0.0 {
+        return (0.0, 0.0, 0.0);
+    }
+    // The constant eliminated: the 2×2 normal equations of the tone on the data less its mean.
+    let x1 = x.iter().sum::<f64>();
+    let (ss, cc, sc) = (ss - s1 * s1 / n, cc - c1 * c1 / n, sc - s1 * c1 / n);
+    let (xs, xc) = (xs - s1 * x1 / n, xc - c1 * x1 / n);
     let det = ss * cc - sc * sc;
     let (a, b) = if det.abs() > 1e-12 * (ss * cc).max(1e-300) {
         ((xs * cc - xc * sc) / det, (xc * ss - xs * sc) / det)
     } else if ss + cc > 0.0 {
-        (2.0 * xs / x.len() as f64, 2.0 * xc / x.len() as f64)
+        (2.0 * xs / n, 2.0 * xc / n)
     } else {
         (0.0, 0.0)
     };
@@ -136,14 +168,16 @@ pub fn add_tone(x: &mut [f64], tone: &Tone, ts: f64, k0: f64) {
 }
 
 /// Harmonics `1..=kmax` of `freq_hz` in `x`, measured over whole periods from the start of
-/// `x`; harmonics at or above Nyquist are left out.
+/// `x`; harmonics within a bin of Nyquist or above are left out.
 pub fn harmonics(x: &[f64], freq_hz: f64, ts: f64, kmax: usize) -> Vec<Tone> {
     let n = whole_periods(x.len(), freq_hz, ts);
     let xs = &x[..n];
     let m = mean(xs);
     let centred: Vec<f64> = xs.iter().map(|v| v - m).collect();
-    // One pass over the record per harmonic, the harmonics in parallel.
-    let freqs: Vec<f64> = (1..=kmax).map(|k| k as f64 * freq_hz).take_while(|&f| f < 0.5 / ts).collect();
+    // One pass over the record per harmonic, the harmonics in parallel; a harmonic within a
+    // bin of Nyquist has almost no sine component over the record, and its fit is ill-posed.
+    let top = 0.5 / ts - 1.0 / (n.max(1) as f64 * ts);
+    let freqs: Vec<f64> = (1..=kmax).map(|k| k as f64 * freq_hz).take_while(|&f| f < top).collect();
     freqs.par_iter().map(|&f| tone(&centred, f, ts)).collect()
 }
 

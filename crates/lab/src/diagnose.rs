@@ -204,6 +204,10 @@ pub struct Residual {
     pub trend_slope_um_per_s: f64,
     /// RMS of what is neither periodic nor trend (µm).
     pub noise_rms_um: f64,
+    /// RMS of the part periodic with the drive above the harmonics analysed (µm): what the
+    /// average period holds beyond them when a period is a whole number of samples (a
+    /// converter's steps, sharp corners); else 0.
+    pub above_um: f64,
 }
 
 /// The whole diagnosis.
@@ -281,9 +285,10 @@ pub struct ModelCheck {
 impl ModelCheck {
     /// Checks a free run `sim` against the held-out output `y` (both over the held-out part)
     /// and the model's structure: a pole on or outside the unit circle, a non-finite value or
-    /// one beyond [`Y_LIMIT_UM`] make it unstable.
+    /// one beyond [`Y_LIMIT_UM`], or a free run that leaves the output's range by
+    /// [`RUNAWAY_SPANS`] times its span ([`runaway`]) make it unstable.
     pub fn of(model: &HostModel, sim: &[f64], y: &[f64], ts: f64) -> ModelCheck {
-        let unstable = instability(model.ext.ar, sim, ts);
+        let unstable = instability(model.ext.ar, sim, ts).or_else(|| runaway(sim, y, ts));
         let fit_pct = unstable.is_none().then(|| fit_pct(y, sim));
         ModelCheck { fit_pct, unstable, narrow: None }
     }
@@ -386,13 +391,37 @@ pub fn instability(ar: [f64; 2], sim: &[f64], ts: f64) -> Option<String> {
         let when = if k == 0 {
             "from its first sample".to_string()
         } else {
-            format!("{} s after its first sample", k as f64 * ts)
+            format!("{} s after its first sample", fmt_s(k as f64 * ts))
         };
         return Some(format!(
             "its free run leaves the physical range (±{Y_LIMIT_UM} µm) {when} over the held-out part: it diverges"
         ));
     }
     None
+}
+
+/// A free run this many times the output's span beyond the output's range has run away
+/// from the record (see [`runaway`]).
+pub const RUNAWAY_SPANS: f64 = 10.0;
+
+/// Why a free run `sim` has run away from the output `y` it models, if it has: it leaves
+/// `y`'s range by [`RUNAWAY_SPANS`] times `y`'s span. A model that does so is not a model of
+/// the record, even inside the physical range: its held-out error would be a number that
+/// means nothing (a symmetric loop fitted to a square drive once left 2,879 µm held out on a
+/// 12 µm output).
+pub fn runaway(sim: &[f64], y: &[f64], ts: f64) -> Option<String> {
+    let (lo, hi) = analysis::extent(y);
+    let span = hi - lo;
+    if !(span > 0.0) {
+        return None;
+    }
+    let (a, b) = (lo - RUNAWAY_SPANS * span, hi + RUNAWAY_SPANS * span);
+    let k = sim.iter().position(|v| *v < a || *v > b)?;
+    Some(format!(
+        "its free run leaves {RUNAWAY_SPANS} times the output's span beyond its range ([{lo:.3}, {hi:.3}] µm) {} s after \
+         the held-out part's first sample: it runs away from the record",
+        fmt_s(k as f64 * ts)
+    ))
 }
 
 /// How far (µm, signed) the mean of a signal moves from its first to its last whole period
@@ -658,6 +687,7 @@ impl Diagnosis {
                 "periodic_rms_um": r.periodic_rms_um(),
                 "trend_rms_um": r.trend_rms_um,
                 "noise_rms_um": r.noise_rms_um,
+                "above_harmonics_um": r.above_um,
                 "harmonics_um": r.harmonics.iter().map(|h| h.amp).collect::<Vec<_>>(),
             },
             "trials": self.trials.iter().map(trial).collect::<Vec<_>>(),
@@ -733,6 +763,16 @@ impl Diagnosis {
             r.noise_rms_um,
             pct(r.noise_rms_um),
         );
+        if pct(r.above_um) >= 5.0 {
+            let _ = writeln!(
+                s,
+                "  periodic above harmonic {} ({:.1} Hz): {:.4} µm ({:.0}% of the power), faster than the harmonics analysed (sharp corners, a converter's steps)",
+                r.harmonics.len(),
+                r.harmonics.last().map_or(0.0, |h| h.freq_hz),
+                r.above_um,
+                pct(r.above_um)
+            );
+        }
         let mut top: Vec<(usize, &Tone)> = r.harmonics.iter().enumerate().collect();
         top.sort_by(|a, b| b.1.amp.total_cmp(&a.1.amp));
         for (i, h) in top.iter().take(4) {
@@ -812,9 +852,11 @@ fn fmt_s(x: f64) -> String {
 }
 
 impl Residual {
-    /// RMS of the part periodic with the drive (all harmonics measured).
+    /// RMS of the part periodic with the drive (all harmonics measured, and what repeats
+    /// above them).
     pub fn periodic_rms_um(&self) -> f64 {
-        (self.harmonics.iter().map(|h| h.amp * h.amp / 2.0).sum::<f64>()).sqrt()
+        (self.harmonics.iter().map(|h| h.amp * h.amp / 2.0).sum::<f64>() + self.above_um * self.above_um)
+            .sqrt()
     }
 }
 
@@ -991,7 +1033,25 @@ pub fn decompose(r: &[f64], f: f64, ts: f64) -> Residual {
         }
     }
     let (trend, slope) = poly_fit(&rest, ts, 3);
-    let noise: Vec<f64> = rest.iter().zip(&trend).map(|(a, b)| a - b).collect();
+    let mut noise: Vec<f64> = rest.iter().zip(&trend).map(|(a, b)| a - b).collect();
+    // Over whole-sample periods, what still repeats is periodic too, above the harmonics.
+    let mut above_um = 0.0;
+    if let Some(p) = analysis::whole_sample_period(f, ts, n) {
+        let (avg, m) = analysis::average_period(&noise, p);
+        // The average of m periods holds 1/m of the noise's power: it counts when it holds
+        // twice that.
+        let (avg_power, noise_share) =
+            (analysis::rms(&avg).powi(2), analysis::rms(&noise).powi(2) / m as f64);
+        if avg_power > 2.0 * noise_share {
+            above_um = (avg_power - noise_share).sqrt();
+            for (k, v) in noise.iter_mut().enumerate().take(m * p) {
+                *v -= avg[k % p];
+            }
+            // The deviation from a mean of m periods underestimates by √((m−1)/m).
+            let scale = (m as f64 / (m as f64 - 1.0)).sqrt();
+            noise.iter_mut().for_each(|v| *v *= scale);
+        }
+    }
     Residual {
         rms_um: analysis::rms(r),
         harmonics,
@@ -999,6 +1059,7 @@ pub fn decompose(r: &[f64], f: f64, ts: f64) -> Residual {
         trend_mean_um: analysis::mean(&trend),
         trend_slope_um_per_s: slope,
         noise_rms_um: analysis::rms(&noise),
+        above_um,
     }
 }
 

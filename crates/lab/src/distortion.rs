@@ -89,7 +89,7 @@ pub struct Lines {
 /// `period` samples from sample 0): the mean over the periods and the noise variance of the
 /// mean. `None` with fewer than two periods.
 fn period_lines(x: &[f64], period: f64, kmax: u32) -> Option<(Vec<Complex<f64>>, Vec<f64>)> {
-    let m = (x.len() as f64 / period).floor() as usize;
+    let m = ((x.len() as f64 + 0.49) / period).floor() as usize;
     if m < 2 || kmax == 0 {
         return None;
     }
@@ -205,7 +205,7 @@ pub fn lines(u: &[f64], y: &[f64], period: f64, ts: f64, kmax: u32) -> Option<Li
             }
         })
         .collect();
-    Some(Lines { f0_hz: f0, period, periods: (n as f64 / period).floor() as usize, lines })
+    Some(Lines { f0_hz: f0, period, periods: ((n as f64 + 0.49) / period).floor() as usize, lines })
 }
 
 fn db_ratio(db: f64) -> f64 {

@@ -228,7 +228,7 @@ pub fn diagnose(
     let mut sets = vec![];
     let mut periods = vec![];
     for (r, (w, t0)) in records.iter().zip(&windows) {
-        let m = ((w.end - w.start) as f64 / period + 1e-6).floor() as usize;
+        let m = (((w.end - w.start) as f64 + 0.49) / period).floor() as usize;
         if m < min_periods {
             return Err(DiagnoseError::TooFewPeriods {
                 drive_hz: drive.freq_hz,

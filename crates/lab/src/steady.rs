@@ -229,11 +229,38 @@ fn classify_near(u: &[f64], ts: f64, near_hz: Option<f64>) -> Drive {
         _ => 0.0,
     };
     if fund >= 0.5 && share >= HARMONIC_SHARE {
-        let kind = if thd <= SINE_MAX_THD { DriveKind::Sine } else { DriveKind::Periodic };
+        if thd <= SINE_MAX_THD {
+            return Drive {
+                kind: DriveKind::Sine,
+                freq_hz: f_dom,
+                period_samples: Some(1.0 / (f_dom * ts)),
+                harmonics,
+                thd,
+                lines: vec![],
+                periodic_share: share.min(1.0),
+                std_v,
+            };
+        }
+        // A triangle's or a square's own harmonics pull the fundamental's tone off its
+        // frequency over few periods (a 1 Hz square over 8 s read as 0.998 Hz, and its
+        // periods, compared edge against edge, as noise): the period where the drive
+        // matches itself best.
+        let p = matched_period(u, 1.0 / (f_dom * ts)).unwrap_or(1.0 / (f_dom * ts));
+        let f = 1.0 / (p * ts);
+        let n = analysis::whole_periods(u.len(), f, ts);
+        let harmonics = analysis::harmonics(&u[..n], f, ts, harmonic_count(f, ts));
+        let thd = match harmonics.first() {
+            Some(h1) if h1.amp > 0.0 => {
+                harmonics.iter().skip(1).map(|t| t.amp * t.amp).sum::<f64>().sqrt() / h1.amp
+            }
+            _ => thd,
+        };
+        let var_n = variance(&u[..n]).max(1e-300);
+        let share = harmonics.iter().map(power).sum::<f64>() / var_n;
         return Drive {
-            kind,
-            freq_hz: f_dom,
-            period_samples: Some(1.0 / (f_dom * ts)),
+            kind: DriveKind::Periodic,
+            freq_hz: f,
+            period_samples: Some(p),
             harmonics,
             thd,
             lines: vec![],
@@ -315,6 +342,71 @@ fn classify_near(u: &[f64], ts: f64, near_hz: Option<f64>) -> Drive {
         periodic_share,
         std_v,
     }
+}
+
+/// Largest relative error of a period estimate [`matched_period`] corrects.
+pub const PERIOD_SEARCH_REL: f64 = 0.05;
+
+/// The period (samples, to a fraction of a sample) near `p0` at which `x` best matches itself:
+/// the lag of least mean squared difference `x[k + P] − x[k]` within
+/// ±[`PERIOD_SEARCH_REL`] of `p0`, then the same at the largest multiple of it the record
+/// holds (its error divided by the multiple), refined between samples by a parabola through
+/// the three lags about the least. All lags from one FFT of the record. `None` if the
+/// record holds fewer than two periods.
+pub fn matched_period(x: &[f64], p0: f64) -> Option<f64> {
+    let n = x.len();
+    if !(p0 >= 2.0) || (n as f64) < 2.0 * p0 * (1.0 - PERIOD_SEARCH_REL) {
+        return None;
+    }
+    let m = analysis::mean(x);
+    let len = (2 * n).next_power_of_two();
+    let mut buf: Vec<Complex<f64>> = x
+        .iter()
+        .map(|&v| Complex::new(v - m, 0.0))
+        .chain(std::iter::repeat(Complex::new(0.0, 0.0)))
+        .take(len)
+        .collect();
+    let mut planner = FftPlanner::new();
+    planner.plan_fft_forward(len).process(&mut buf);
+    for c in buf.iter_mut() {
+        *c = Complex::new(c.norm_sqr(), 0.0);
+    }
+    planner.plan_fft_inverse(len).process(&mut buf);
+    // Energies of the first and the last n − lag samples, by prefix sums.
+    let mut prefix = Vec::with_capacity(n + 1);
+    prefix.push(0.0);
+    for &v in x {
+        let v = v - m;
+        prefix.push(prefix.last().copied().unwrap_or(0.0) + v * v);
+    }
+    // Mean squared difference at an integer lag (the overlap is at least a period).
+    let msd = |lag: usize| -> f64 {
+        let over = n - lag;
+        let head = prefix[over];
+        let tail = prefix[n] - prefix[lag];
+        (head + tail - 2.0 * buf[lag].re / len as f64) / over as f64
+    };
+    let least = |lo: f64, hi: f64| -> Option<f64> {
+        let (lo, hi) = ((lo.floor() as usize).max(1), (hi.ceil() as usize).min(n.saturating_sub(2)));
+        let k = (lo..=hi).min_by(|&a, &b| msd(a).total_cmp(&msd(b)))?;
+        if k <= 1 || k + 1 >= n {
+            return Some(k as f64);
+        }
+        let (a, b, c) = (msd(k - 1), msd(k), msd(k + 1));
+        let curv = a - 2.0 * b + c;
+        let shift = if curv > 0.0 { (0.5 * (a - c) / curv).clamp(-0.5, 0.5) } else { 0.0 };
+        Some(k as f64 + shift)
+    };
+    let p1 =
+        least(p0 * (1.0 - PERIOD_SEARCH_REL), (p0 * (1.0 + PERIOD_SEARCH_REL)).min(n as f64 - 0.9 * p0))?;
+    // The largest multiple whose overlap keeps a period and a half.
+    let mult = ((n as f64 - 1.5 * p1) / p1).floor().max(1.0);
+    if mult < 2.0 {
+        return Some(p1);
+    }
+    let at = mult * p1;
+    let pm = least(at - mult, at + mult)?;
+    Some(pm / mult)
 }
 
 /// The period (samples, refined between samples) of a repeating signal: the first peak of
@@ -730,12 +822,17 @@ pub fn steady_window(
     if let (true, Some(p)) = (drive.is_periodic(), drive.period_samples) {
         // A "period" the window does not hold twice is a piece of a drive that does not
         // repeat (a random staircase's one step): the whole record says what it is.
+        // A slow drive's record of fewer periods than the blocks need (four of about a
+        // period) gives such a piece too: if the whole record repeats, it is the window.
         if ((end - start) as f64) < 2.0 * p {
             let whole = classify(&u[..n], ts);
-            if !whole.is_periodic() {
-                let why = "the whole record: no part of it repeats over two periods".to_string();
-                return Ok((Window { drive_on: 0, start: 0, end: n, given: false, why }, whole));
-            }
+            let why = if whole.is_periodic() {
+                "the whole record: its drive repeats over the record only (too few periods to look for a steady part)"
+            } else {
+                "the whole record: no part of it repeats over two periods"
+            };
+            let end = whole_period_end(0, n, &whole);
+            return Ok((Window { drive_on: 0, start: 0, end, given: false, why: why.to_string() }, whole));
         }
     }
     Ok((Window { drive_on: on, start, end, given: false, why }, drive))
@@ -745,7 +842,8 @@ pub fn steady_window(
 fn whole_period_end(start: usize, end: usize, drive: &Drive) -> usize {
     match (drive.is_periodic(), drive.period_samples) {
         (true, Some(p)) if p > 0.0 => {
-            let periods = ((end - start) as f64 / p).floor();
+            // Half a sample of slack: a period estimated a hair long keeps the last period.
+            let periods = (((end - start) as f64 + 0.49) / p).floor();
             if periods >= 1.0 { (start + (periods * p).round() as usize).min(end) } else { end }
         }
         _ => end,
@@ -755,7 +853,7 @@ fn whole_period_end(start: usize, end: usize, drive: &Drive) -> usize {
 /// Samples from the start of the steady drive until the output has settled (step 3).
 fn settling(y: &[f64], ts: f64, drive: &Drive, p: f64) -> usize {
     let n = y.len();
-    let periods = (n as f64 / p).floor() as usize;
+    let periods = ((n as f64 + 0.49) / p).floor() as usize;
     if periods < 4 {
         return 0;
     }
@@ -950,6 +1048,15 @@ fn max_correlation(u: &[f64], y: &[f64], lags: usize) -> f64 {
 /// less its harmonics of the drive and a slow cubic trend; a multisine: less its average
 /// period), else from the second difference (an upper bound for a smooth output).
 pub fn noise_floor(y: &[f64], ts: f64, drive: &Drive) -> (f64, &'static str) {
+    // What does not repeat from one period of `p` samples to the next: every harmonic, the
+    // fast ones too (a triangle's corners, a converter's steps at a fraction of the sampling
+    // rate), without fitting them.
+    let by_average = |x: &[f64], p: usize| {
+        let (avg, m) = analysis::average_period(x, p);
+        let e: Vec<f64> = (0..m * p).map(|k| x[k] - avg[k % p]).collect();
+        // The deviation from a mean of m periods underestimates by √((m−1)/m).
+        analysis::rms(&e) * (m as f64 / (m as f64 - 1.0)).sqrt()
+    };
     match drive.kind {
         DriveKind::Sine | DriveKind::Periodic => {
             let n = analysis::whole_periods(y.len(), drive.freq_hz, ts);
@@ -959,19 +1066,17 @@ pub fn noise_floor(y: &[f64], ts: f64, drive: &Drive) -> (f64, &'static str) {
             for t in &h {
                 analysis::add_tone(&mut rest, &Tone { amp: -t.amp, ..*t }, ts, 0.0);
             }
-            (analysis::rms(&detrend_cubic(&rest)), "period_to_period")
+            let rest = detrend_cubic(&rest);
+            // Over whole-sample periods, the harmonics above those fitted repeat too.
+            match analysis::whole_sample_period(drive.freq_hz, ts, n) {
+                Some(p) => (by_average(&rest, p), "period_to_period"),
+                None => (analysis::rms(&rest), "period_to_period"),
+            }
         }
         DriveKind::Multisine => {
             let p = drive.period_samples.unwrap_or(1.0).round().max(1.0) as usize;
-            let m = y.len() / p;
-            if m >= 2 {
-                let mut avg = vec![0.0; p];
-                for k in 0..m * p {
-                    avg[k % p] += y[k] / m as f64;
-                }
-                let e: Vec<f64> = (0..m * p).map(|k| y[k] - avg[k % p]).collect();
-                // The deviation from a mean of m periods underestimates by √((m−1)/m).
-                return (analysis::rms(&e) * (m as f64 / (m as f64 - 1.0)).sqrt(), "period_to_period");
+            if y.len() / p >= 2 {
+                return (by_average(y, p), "period_to_period");
             }
             (second_difference_noise(y), "second_difference")
         }
@@ -1103,6 +1208,35 @@ mod tests {
             (0..8000).map(|k| (TAU * (1.0 + 5.0 * k as f64 * ts) * k as f64 * ts).sin()).collect();
         assert_eq!(classify(&chirp, ts).kind, DriveKind::Aperiodic, "{}", classify(&chirp, ts).describe());
         assert_eq!(classify(&vec![0.3; 1000], ts).kind, DriveKind::None);
+    }
+
+    #[test]
+    fn a_unipolar_drive_is_a_pure_sine_over_its_whole_record() {
+        // 0–100 V about 50 V, as a piezo stack's amplifier drives it, starting at 0 V: the mean
+        // leaked into a tone fitted without a constant (0.985 Hz, 1.6 % "distortion" and an
+        // output "settling" for 3 s were read from such a record).
+        for (ts, n) in [(1e-4, 100_000), (1e-3, 10_000)] {
+            let u: Vec<f64> = (0..n).map(|k| 50.0 - 50.0 * (TAU * 1.0 * k as f64 * ts).cos()).collect();
+            let y: Vec<f64> = u.iter().map(|v| 0.15 * v).collect();
+            let (w, d) = steady_window(&u, &y, ts, None).unwrap();
+            assert_eq!(d.kind, DriveKind::Sine);
+            assert!((d.freq_hz - 1.0).abs() < 1e-7 && d.thd < 1e-5, "{} Hz, thd {}", d.freq_hz, d.thd);
+            // Every one of the ten periods, the last one too.
+            assert_eq!((w.start, w.end), (0, n), "{}", w.why);
+        }
+    }
+
+    #[test]
+    fn a_slow_drive_of_three_periods_is_counted_as_such() {
+        // 0.1 Hz over 30 s: blocks of a period are too few to compare (four are needed), and a
+        // piece of the slow sine was read as "1 whole period of a 1.174 Hz drive".
+        let ts = 1e-3;
+        let u = sine(30_000, 0.1, ts, 50.0);
+        let y: Vec<f64> = u.iter().map(|v| 0.15 * v).collect();
+        let (w, d) = steady_window(&u, &y, ts, None).unwrap();
+        assert_eq!(d.kind, DriveKind::Sine);
+        assert!((d.freq_hz - 0.1).abs() < 1e-6, "{}", d.freq_hz);
+        assert_eq!((w.start, w.end), (0, 30_000), "{}", w.why);
     }
 
     #[test]

@@ -85,7 +85,7 @@ impl Template {
             return None;
         }
         let per = 1.0 / cycles;
-        let periods = ((to - from) as f64 / per).floor();
+        let periods = (((to - from) as f64 + 0.49) / per).floor();
         if periods < MIN_PERIODS {
             return None;
         }

@@ -355,18 +355,27 @@ fn is_comment(line: &str) -> bool {
 }
 
 /// The role a header name stands for, and a unit it states (`disp_mm`, `Voltage (V)`,
-/// `time [ms]`): (role, volts-or-micrometres-or-seconds per unit).
-fn recognise(name: &str) -> (Option<Col>, Option<f64>) {
+/// `time [ms]`): (role, volts-or-micrometres-or-seconds per unit, whether the name itself
+/// is the role's). A name of several words (`Piezo Voltage`, `Measured Position`) takes the
+/// role its words name if they name only one, behind a column named exactly; a name that is
+/// only a unit (`V`, `um`, `ms`) takes the role of that unit's quantity.
+fn recognise(name: &str) -> (Option<Col>, Option<f64>, bool) {
     let lower = name.trim().to_lowercase();
     let (base, unit) = split_unit(&lower);
-    let role = match base {
-        "t" | "time" | "times" | "timestamp" | "sec" | "seconds" => Some(Col::T),
-        "u" | "v" | "volt" | "volts" | "voltage" | "input" | "drive" | "command" | "cmd" | "vin"
-        | "excitation" => Some(Col::U),
-        "y" | "disp" | "displacement" | "position" | "pos" | "deflection" | "output" | "out" => Some(Col::Y),
-        "d" | "ref" | "reference" | "target" | "setpoint" | "desired" => Some(Col::D),
-        _ => None,
+    let exact = role_of(base).is_some();
+    let role = role_of(base).or_else(|| {
+        let mut roles = base.split([' ', '_', '-', '.']).filter_map(role_of);
+        let first = roles.next()?;
+        roles.all(|r| r == first).then_some(first)
+    });
+    let (role, unit) = match (role, unit) {
+        (Some(r), u) => (Some(r), u),
+        (None, None) if TIME_UNITS.contains(&base) => (Some(Col::T), Some(base)),
+        (None, None) if base.parse::<LengthUnit>().is_ok() && base != "m" => (Some(Col::Y), Some(base)),
+        (None, None) if base.parse::<VoltUnit>().is_ok() => (Some(Col::U), Some(base)),
+        _ => (None, unit),
     };
+    let exact = exact || (role.is_some() && unit == Some(base));
     let scale = match (role, unit) {
         (Some(Col::T), Some(u)) => match u {
             "s" => Some(1.0),
@@ -378,7 +387,23 @@ fn recognise(name: &str) -> (Option<Col>, Option<f64>) {
         (Some(Col::Y | Col::D), Some(u)) => u.parse::<LengthUnit>().ok().map(LengthUnit::micrometres),
         _ => None,
     };
-    (role, scale)
+    (role, scale, exact)
+}
+
+/// Units of a time column.
+const TIME_UNITS: [&str; 5] = ["s", "ms", "us", "µs", "μs"];
+
+/// The role one word of a header names.
+fn role_of(word: &str) -> Option<Col> {
+    match word {
+        "t" | "time" | "times" | "timestamp" | "sec" | "seconds" => Some(Col::T),
+        "u" | "v" | "volt" | "volts" | "voltage" | "input" | "drive" | "command" | "cmd" | "vin"
+        | "excitation" => Some(Col::U),
+        "y" | "disp" | "displacement" | "position" | "pos" | "deflection" | "output" | "out" | "stroke"
+        | "sensor" | "laser" | "lvdt" => Some(Col::Y),
+        "d" | "ref" | "reference" | "target" | "setpoint" | "desired" => Some(Col::D),
+        _ => None,
+    }
 }
 
 /// `"disp (mm)"` → `("disp", Some("mm"))`, `"time_s"` → `("time", Some("s"))`, `"y"` → `("y", None)`.
@@ -489,7 +514,7 @@ pub fn import_text(text: &str, source: &str, opts: &ImportOptions) -> Result<Imp
     let mut slot: [Option<usize>; 4] = [None; 4];
     let mut scale_from_header: [Option<f64>; 4] = [None; 4];
     let roles = [Col::T, Col::U, Col::Y, Col::D];
-    let recognised: Vec<(Option<Col>, Option<f64>)> =
+    let recognised: Vec<(Option<Col>, Option<f64>, bool)> =
         names.as_ref().map_or_else(Vec::new, |n| n.iter().map(|s| recognise(s)).collect());
     let given = opts.columns.clone().unwrap_or_default();
     for (r, &col) in roles.iter().enumerate() {
@@ -550,12 +575,19 @@ pub fn import_text(text: &str, source: &str, opts: &ImportOptions) -> Result<Imp
             if slot[r].is_some() {
                 continue;
             }
-            let hits: Vec<usize> = recognised
-                .iter()
-                .enumerate()
-                .filter(|(i, (c, _))| *c == Some(col) && !slot.contains(&Some(*i)))
-                .map(|(i, _)| i)
-                .collect();
+            let hits_by = |exact: bool| -> Vec<usize> {
+                recognised
+                    .iter()
+                    .enumerate()
+                    .filter(|(i, (c, _, e))| *c == Some(col) && *e == exact && !slot.contains(&Some(*i)))
+                    .map(|(i, _)| i)
+                    .collect()
+            };
+            // A column named exactly for the role comes before one whose words name it.
+            let hits = match hits_by(true) {
+                exact if !exact.is_empty() => exact,
+                _ => hits_by(false),
+            };
             match hits.as_slice() {
                 [] => {}
                 [i] => {

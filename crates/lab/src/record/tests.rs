@@ -374,6 +374,28 @@ fn other_names_order_separators_and_units_from_the_header() {
 }
 
 #[test]
+fn names_of_several_words_and_names_that_are_units() {
+    // Each word of the name names the same role; a unit alone names its quantity.
+    let i = import_with(
+        "Time [ms],Piezo Voltage (V),Measured Position (nm)\n0,1,5\n1,2,6\n",
+        &ImportOptions::default(),
+    )
+    .unwrap();
+    assert_eq!((i.record.u.clone(), i.record.y.clone()), (vec![1.0, 2.0], vec![0.005, 0.006]));
+    let i = import_with("s,V,um\n0,1,5\n0.002,2,6\n", &ImportOptions::default()).unwrap();
+    assert_eq!((i.record.u.clone(), i.record.y.clone()), (vec![1.0, 2.0], vec![5.0, 6.0]));
+    assert!((i.record.ts - 2e-3).abs() < 1e-15);
+    let i = import_with("ms,mV,nm\n0,1000,5\n1,2000,6\n", &ImportOptions::default()).unwrap();
+    assert_eq!((i.record.u.clone(), i.record.y.clone()), (vec![1.0, 2.0], vec![0.005, 0.006]));
+    // A column named exactly comes before one whose words name the role; words that name two
+    // roles name none (is "output voltage" the drive or a sensor's voltage?).
+    let e = import_with("t,u,y,y_filtered\n0,1,5,5\n0.001,2,6,6\n", &ImportOptions::default()).unwrap_err();
+    assert!(e.to_string().contains("y_filtered"), "{e}");
+    let e = import_with("t,output voltage,y\n0,1,5\n0.001,2,6\n", &ImportOptions::default()).unwrap_err();
+    assert!(e.to_string().contains("--columns"), "{e}");
+}
+
+#[test]
 fn columns_flag_by_name_or_position_without_header_or_time() {
     let opts = ImportOptions { columns: Some("u=VOLTAGE,y=3".parse().unwrap()), ..ImportOptions::default() };
     let i = import_with("time,voltage,laser\n0,1,5\n0.002,2,6\n", &opts).unwrap();
