@@ -120,6 +120,11 @@ pub fn import_json(i: &Imported) -> serde_json::Value {
         "sample_rate_hz": match i.info.time { TimeSource::SampleRate(hz) => Some(hz), TimeSource::Column(_) => None },
         "samples": i.record.len(),
         "ts_s": i.record.ts,
+        "spikes": i.info.spikes.as_ref().map(|s| serde_json::json!({
+            "count": s.count,
+            "departure_um": s.departure_um,
+            "first_s": s.first_s,
+        })),
     })
 }
 

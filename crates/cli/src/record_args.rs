@@ -25,6 +25,10 @@ pub struct RecordArgs {
     /// the steady window found in the record).
     #[arg(long, value_name = "START:END")]
     window: Option<String>,
+    /// Keep isolated spikes of the output as read (by default a sample or two far from both
+    /// its neighbours' cubic and their median, a sensor's dropout, is replaced and said so).
+    #[arg(long)]
+    keep_spikes: bool,
 }
 
 impl RecordArgs {
@@ -40,6 +44,7 @@ impl RecordArgs {
             sample_rate_hz: self.sample_rate,
             u_unit: self.u_unit,
             y_unit: self.y_unit,
+            keep_spikes: self.keep_spikes,
         };
         record::import(path, &opts).map_err(|e| e.to_string())
     }

@@ -412,7 +412,7 @@ pub const RUNAWAY_SPANS: f64 = 10.0;
 pub fn runaway(sim: &[f64], y: &[f64], ts: f64) -> Option<String> {
     let (lo, hi) = analysis::extent(y);
     let span = hi - lo;
-    if !(span > 0.0) {
+    if span.is_nan() || span <= 0.0 {
         return None;
     }
     let (a, b) = (lo - RUNAWAY_SPANS * span, hi + RUNAWAY_SPANS * span);
@@ -2187,7 +2187,22 @@ fn explain(
     let f = c.freq_hz;
     // A single-sine record places the structure's resonance only roughly (the fit bends it to
     // imitate harmonics), hence a wide window.
-    let near = resonances.iter().flatten().copied().find(|r| (r - f).abs() <= NEAR_RESONANCE * f.max(*r));
+    let is_near = |r: &f64| (r - f).abs() <= NEAR_RESONANCE * f.max(*r);
+    let near = resonances.iter().flatten().copied().find(is_near);
+    // Only the baseline's structure, which made the harmonic before the branch did, has it
+    // there: one sine cannot tell a resonance that amplifies the harmonic from a structure
+    // bent to make it (a quasi-static stiffening at 5 Hz had its "resonance" at 15 Hz).
+    let only_baseline = !resonances.first().copied().flatten().is_some_and(|r| is_near(&r));
+    let confirm = |r: f64| -> String {
+        if only_baseline {
+            format!(
+                " (the model with the branch leaves it elsewhere; one sine places a resonance only through the \
+                 harmonics it makes: a multisine or a sweep through {r:.0} Hz tells whether it is there)"
+            )
+        } else {
+            String::new()
+        }
+    };
     let harmonic = |n: u32| -> String {
         let in_out = out.get(n as usize - 1).map_or(0.0, |t| t.amp);
         let rel = if out_amp > 0.0 { 100.0 * in_out / out_amp } else { 0.0 };
@@ -2220,8 +2235,9 @@ fn explain(
             let mut s = format!("odd harmonic oscillation: {}", harmonic(n));
             match near {
                 Some(r) => s.push_str(&format!(
-                    "; the fitted structure has a resonance near {r:.0} Hz, which amplifies the {} harmonic of \
+                    "; the fitted structure has a resonance near {r:.0} Hz{}, which amplifies the {} harmonic of \
                      a nonlinearity the Bouc–Wen loop does not hold (e.g. a stiffening of the actuator or its mechanism)",
+                    confirm(r),
                     ordinal(n)
                 )),
                 None => s.push_str("; a nonlinearity beyond the Bouc–Wen loop"),
@@ -2236,7 +2252,7 @@ fn explain(
                 harmonic(n)
             );
             if let Some(r) = near {
-                s.push_str(&format!(", amplified by the resonance near {r:.0} Hz"));
+                s.push_str(&format!(", amplified by the resonance near {r:.0} Hz{}", confirm(r)));
             }
             s
         }

@@ -14,6 +14,7 @@
 //! | [`Mess::Whitespace`] | comment lines, columns aligned with spaces, output in nm | `--y-unit nm` |
 //! | [`Mess::DriveHarmonics`] | the drive carries its own 2nd and 3rd harmonics (0.5–3 % each) | nothing |
 //! | [`Mess::SecondInput`] | the actuator is also driven by a second sine (1–1.5 times the drive, at 0.3–0.45 of its frequency) that the record does not carry | nothing |
+//! | [`Mess::Dropouts`] | 5 to 20 samples of `y` (a quarter of them in pairs) off by 0.3 to 2 times the output's amplitude, as a laser sensor that loses its target reads | nothing |
 //!
 //! [`Mess::SecondInput`] is drawn on a clean actuator; its truth is that another input
 //! drives the output ([`Truth::OtherInput`]). [`Mess::FewPeriods`] is drawn for clean and
@@ -45,11 +46,13 @@ pub enum Mess {
     DriveHarmonics,
     /// A second input the record does not carry.
     SecondInput,
+    /// A sensor that loses its target for a sample or two now and then.
+    Dropouts,
 }
 
 impl Mess {
     /// Every mess.
-    pub const ALL: [Mess; 8] = [
+    pub const ALL: [Mess; 9] = [
         Mess::LeadIn,
         Mess::FewPeriods,
         Mess::Renamed,
@@ -58,6 +61,7 @@ impl Mess {
         Mess::Whitespace,
         Mess::DriveHarmonics,
         Mess::SecondInput,
+        Mess::Dropouts,
     ];
 
     /// A short name: "lead-in", "few-periods", ….
@@ -71,6 +75,7 @@ impl Mess {
             Mess::Whitespace => "whitespace",
             Mess::DriveHarmonics => "drive-harmonics",
             Mess::SecondInput => "second-input",
+            Mess::Dropouts => "dropouts",
         }
     }
 
@@ -196,7 +201,21 @@ impl Messy {
             Some(v) => u.iter().zip(v).map(|(a, b)| a + b).collect(),
             None => u.clone(),
         };
-        let y = Bimorph::new(&case.scenario)?.run(&seen)?;
+        let mut y = Bimorph::new(&case.scenario)?.run(&seen)?;
+        if mess == Mess::Dropouts {
+            let (lo, hi) = crate::analysis::extent(&y);
+            let amp = 0.5 * (hi - lo);
+            let n = y.len();
+            let count = d.uniform(5.0, 21.0) as usize;
+            for _ in 0..count {
+                let k = d.uniform(10.0, (n - 10) as f64) as usize;
+                let h = amp * d.uniform(0.3, 2.0) * if d.uniform(0.0, 1.0) < 0.5 { -1.0 } else { 1.0 };
+                y[k] += h;
+                if d.uniform(0.0, 1.0) < 0.25 {
+                    y[k + 1] += h * d.uniform(0.8, 1.2);
+                }
+            }
+        }
         let name = format!("{}-{}-{}", mess.name(), effect.name(), seed);
         let rec = Record::new(&name, 0.0, ts, u, y, None).map_err(CaseError::Record)?;
         let (text, opts, flags) = write(mess, &rec);

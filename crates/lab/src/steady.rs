@@ -355,7 +355,7 @@ pub const PERIOD_SEARCH_REL: f64 = 0.05;
 /// record holds fewer than two periods.
 pub fn matched_period(x: &[f64], p0: f64) -> Option<f64> {
     let n = x.len();
-    if !(p0 >= 2.0) || (n as f64) < 2.0 * p0 * (1.0 - PERIOD_SEARCH_REL) {
+    if p0.is_nan() || p0 < 2.0 || (n as f64) < 2.0 * p0 * (1.0 - PERIOD_SEARCH_REL) {
         return None;
     }
     let m = analysis::mean(x);

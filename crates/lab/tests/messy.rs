@@ -143,6 +143,27 @@ fn a_second_input_the_record_does_not_carry_is_named_and_not_diagnosed_further()
 }
 
 #[test]
+fn a_sensor_s_dropouts_are_repaired_on_reading_and_said_so() {
+    // The dropouts weigh more than what the diagnosis measures: read as they are, they are
+    // the record's "noise floor" and hide the harmonic.
+    for (effect, seed) in [(Effect::OddHarmonic(5), 1), (Effect::Clean, 2), (Effect::EvenHarmonic(2), 3)] {
+        let (m, d) = assert_right(Mess::Dropouts, effect, seed);
+        let read = import_text(&m.text, &m.file_name(), &m.opts).unwrap();
+        let spikes = read.info.spikes.as_ref().expect("the dropouts are found");
+        assert!((5..=40).contains(&spikes.count), "{spikes:?}");
+        assert!(read.info.describe().contains("isolated spikes"), "{}", read.info.describe());
+        assert!(d.noise_um.0 < 0.05, "noise floor {} µm", d.noise_um.0);
+        // Kept as read, the same record is not diagnosed right.
+        let opts = ImportOptions { keep_spikes: true, ..m.opts.clone() };
+        let read = import_text(&m.text, &m.file_name(), &opts).unwrap();
+        assert!(read.info.spikes.is_none());
+        let r = read.record;
+        let kept = diagnose::diagnose_record(&r.u, &r.y, r.ts, r.t0, None, &Thresholds::default()).unwrap();
+        assert!(kept.noise_um.0 > 10.0 * d.noise_um.0, "{} vs {}", kept.noise_um.0, d.noise_um.0);
+    }
+}
+
+#[test]
 fn every_trial_that_gained_enough_and_was_not_kept_is_listed_with_its_reason() {
     let (_, d) = diagnosed(Mess::Renamed, Effect::OddHarmonic(5), 2);
     let listed = d.not_kept();

@@ -225,6 +225,8 @@ pub struct ImportOptions {
     pub u_unit: Option<VoltUnit>,
     /// The unit of `y` and `d` (`None`: the header's, else µm).
     pub y_unit: Option<LengthUnit>,
+    /// Keep isolated spikes of `y` as read (by default they are repaired: [`super::spikes`]).
+    pub keep_spikes: bool,
 }
 
 /// How fields are separated.
@@ -276,6 +278,40 @@ pub struct ImportInfo {
     pub y_unit: LengthUnit,
     /// Where the times came from.
     pub time: TimeSource,
+    /// The isolated spikes of `y` repaired ([`super::spikes`]), if any.
+    pub spikes: Option<SpikeNote>,
+}
+
+/// Isolated spikes of `y` the importer repaired.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SpikeNote {
+    /// How many samples were replaced.
+    pub count: usize,
+    /// The smallest and the largest departure from their replacement (µm).
+    pub departure_um: [f64; 2],
+    /// The time of the first (s, the record's axis).
+    pub first_s: f64,
+}
+
+impl SpikeNote {
+    /// One clause: "y: 15 isolated spikes (20.3 to 59.6 µm off their neighbours, the first
+    /// at 1.234 s) replaced …".
+    pub fn describe(&self) -> String {
+        format!(
+            "y: {} isolated spike{} ({:.3} to {:.3} µm off {} neighbours, the first at {} s) replaced by the cubic through \
+             {} neighbours (a sensor's dropouts, not the actuator; --keep-spikes keeps them)",
+            self.count,
+            if self.count == 1 { "" } else { "s" },
+            self.departure_um[0],
+            self.departure_um[1],
+            if self.count == 1 { "its" } else { "their" },
+            {
+                let t = format!("{:.6}", self.first_s);
+                t.trim_end_matches('0').trim_end_matches('.').to_string()
+            },
+            if self.count == 1 { "its" } else { "their" },
+        )
+    }
 }
 
 impl ImportInfo {
@@ -297,8 +333,9 @@ impl ImportInfo {
             TimeSource::Column(_) => String::new(),
             TimeSource::SampleRate(hz) => format!("; times from --sample-rate {hz} Hz"),
         };
+        let spikes = self.spikes.as_ref().map_or(String::new(), |s| format!("; {}", s.describe()));
         format!(
-            "{}-separated, {}; {}{time}",
+            "{}-separated, {}; {}{time}{spikes}",
             self.separator.name(),
             if self.header { "with a header" } else { "no header" },
             cols.join(", ")
@@ -761,8 +798,17 @@ pub fn import_text(text: &str, source: &str, opts: &ImportOptions) -> Result<Imp
             Some((col.name(), from))
         })
         .collect();
+
+    let spikes = if opts.keep_spikes { None } else { super::spikes::repair(&mut y) }.map(|s| SpikeNote {
+        count: s.indices.len(),
+        departure_um: [s.min_departure, s.max_departure],
+        first_s: t0 + s.indices[0] as f64 * ts,
+    });
     let record = Record { source: source.to_owned(), ts, t0, u, y, d: has_d.then_some(d) };
-    Ok(Imported { record, info: ImportInfo { separator: sep, header, columns, u_unit, y_unit, time } })
+    Ok(Imported {
+        record,
+        info: ImportInfo { separator: sep, header, columns, u_unit, y_unit, time, spikes },
+    })
 }
 
 /// The unit of the last digit of a decimal number as written: `0.0003` → 1e-4,

@@ -34,6 +34,12 @@
 //!   for `d`). An output that spans less than 1 nm or more than 10 mm as read is refused with
 //!   the unit that would make it plausible and the flag ([`MIN_SPAN_UM`], [`MAX_SPAN_UM`]).
 //!   Subnormal values (below `2.2·10⁻³⁰⁸`) are read as 0.
+//!   A name of several words takes the role its words name if they name only one
+//!   (`Piezo Voltage`, `Measured Position (nm)`), behind a column named exactly; a name that
+//!   is only a unit takes its quantity's role (`s`, `ms`; `V`, `mV`; `um`, `nm`, `mm`).
+//! - **Spikes**: isolated samples of `y` far from both their neighbours' cubic and their
+//!   median (a sensor's dropouts) are replaced and reported ([`spikes`],
+//!   [`ImportInfo::spikes`]); [`ImportOptions::keep_spikes`] (`--keep-spikes`) keeps them.
 //! - **Rows**: as many fields as the first line; each value one that Rust's `f64` parser
 //!   accepts (`1`, `-0.5`, `1e-3`, `+2.`). `NaN` and `inf` are rejected.
 //! - **Text**: UTF-8, with or without a byte-order mark; LF or CRLF line ends.
@@ -79,12 +85,13 @@
 mod error;
 mod import;
 mod replay;
+pub mod spikes;
 mod write;
 
 pub use error::{At, EXCERPT_CHARS, ErrorKind, RecordError, excerpt};
 pub use import::{
     ColumnMap, ColumnRef, ImportInfo, ImportOptions, Imported, LengthUnit, MAX_SPAN_UM, MIN_SPAN_UM,
-    OptionError, Separator, TimeSource, VoltUnit, import, import_text,
+    OptionError, Separator, SpikeNote, TimeSource, VoltUnit, import, import_text,
 };
 pub use replay::{REPLAY_TOLERANCE_V, Replay, ReplayError};
 pub use write::{write_atomic, write_columns};
