@@ -80,6 +80,40 @@ pub fn average_period(x: &[f64], p: usize) -> (Vec<f64>, usize) {
     (avg, m)
 }
 
+/// What of `x` (its whole periods of `p` samples) neither repeats from period to period nor
+/// follows a slow cubic in time: `x` less the least-squares fit of a periodic part (any
+/// waveform of `p` samples) plus `t, t², t³`, fitted jointly (the polynomial's own periodic
+/// part taken out first; detrending first would pass a fast periodic part's projection on the
+/// polynomial into the result as "noise"). Its RMS, times `√(m/(m−1))` for `m` periods, is the
+/// noise of one period.
+pub fn periodic_residual(x: &[f64], p: usize) -> Vec<f64> {
+    let m = x.len() / p.max(1);
+    let len = m * p;
+    let x = &x[..len];
+    let without_period = |v: &[f64]| -> Vec<f64> {
+        let (avg, _) = average_period(v, p);
+        v.iter().enumerate().map(|(k, a)| a - avg[k % p]).collect()
+    };
+    let e0 = without_period(x);
+    if m < 2 {
+        return e0;
+    }
+    let half = (len.max(2) - 1) as f64 / 2.0;
+    let basis: Vec<Vec<f64>> = (1..=3)
+        .map(|j| without_period(&(0..len).map(|k| ((k as f64 - half) / half).powi(j)).collect::<Vec<_>>()))
+        .collect();
+    let mut ata = nalgebra::Matrix3::<f64>::zeros();
+    let mut atb = nalgebra::Vector3::<f64>::zeros();
+    for i in 0..3 {
+        for j in 0..3 {
+            ata[(i, j)] = basis[i].iter().zip(&basis[j]).map(|(a, b)| a * b).sum();
+        }
+        atb[i] = basis[i].iter().zip(&e0).map(|(a, b)| a * b).sum();
+    }
+    let Some(c) = ata.lu().solve(&atb) else { return e0 };
+    (0..len).map(|k| e0[k] - (0..3).map(|j| c[j] * basis[j][k]).sum::<f64>()).collect()
+}
+
 /// The component of `x` at `freq_hz` (sample 0 is `t = 0`), by least squares on
 /// `sin`, `cos` and a constant (exact also off whole periods, and under an offset: a
 /// unipolar drive's mean leaks into a tone fitted without one).

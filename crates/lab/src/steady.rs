@@ -399,13 +399,16 @@ pub fn matched_period(x: &[f64], p0: f64) -> Option<f64> {
     };
     let p1 =
         least(p0 * (1.0 - PERIOD_SEARCH_REL), (p0 * (1.0 + PERIOD_SEARCH_REL)).min(n as f64 - 0.9 * p0))?;
-    // The largest multiple whose overlap keeps a period and a half.
-    let mult = ((n as f64 - 1.5 * p1) / p1).floor().max(1.0);
+    // The largest multiple whose overlap keeps a period and a half, searched within half a
+    // sample per period of it (p1 is within half a sample): fewer multiples than the period
+    // has samples, so the search never reaches the next multiple.
+    let mult = ((n as f64 - 1.5 * p1) / p1).floor().min((p1 - 3.0).floor());
     if mult < 2.0 {
         return Some(p1);
     }
     let at = mult * p1;
-    let pm = least(at - mult, at + mult)?;
+    let half = 0.5 * mult + 1.0;
+    let pm = least(at - half, at + half)?;
     Some(pm / mult)
 }
 
@@ -861,18 +864,18 @@ fn settling(y: &[f64], ts: f64, drive: &Drive, p: f64) -> usize {
     let half = at(periods / 2);
     let tail = &y[half..at(periods)];
     // The periodic part, measured on the second half and extended over the whole run.
-    let template: Vec<f64> = match drive.kind {
-        DriveKind::Multisine => {
-            let pp = p.round() as usize;
-            let m = tail.len() / pp;
-            let mut avg = vec![0.0; pp];
-            for k in 0..m * pp {
-                avg[k % pp] += tail[k] / m as f64;
-            }
+    // Over whole-sample periods, the average period: every harmonic, a square's edges too.
+    let whole = match drive.kind {
+        DriveKind::Multisine => Some(p.round() as usize),
+        _ => analysis::whole_sample_period(drive.freq_hz, ts, tail.len()),
+    };
+    let template: Vec<f64> = match whole {
+        Some(pp) => {
+            let (avg, _) = analysis::average_period(tail, pp);
             // Align the template's phase: the tail starts at sample `half`.
             (0..n).map(|k| avg[(k + pp - half % pp) % pp]).collect()
         }
-        _ => {
+        None => {
             let kmax = harmonic_count(drive.freq_hz, ts);
             let mean = analysis::mean(tail);
             let h = analysis::harmonics(tail, drive.freq_hz, ts, kmax);
@@ -1060,18 +1063,19 @@ pub fn noise_floor(y: &[f64], ts: f64, drive: &Drive) -> (f64, &'static str) {
     match drive.kind {
         DriveKind::Sine | DriveKind::Periodic => {
             let n = analysis::whole_periods(y.len(), drive.freq_hz, ts);
+            // Over whole-sample periods, every harmonic, the fast ones too.
+            if let Some(p) = analysis::whole_sample_period(drive.freq_hz, ts, n) {
+                let m = (n / p) as f64;
+                let e = analysis::periodic_residual(&y[..n], p);
+                return (analysis::rms(&e) * (m / (m - 1.0)).sqrt(), "period_to_period");
+            }
             let kmax = harmonic_count(drive.freq_hz, ts);
             let h = analysis::harmonics(&y[..n], drive.freq_hz, ts, kmax);
             let mut rest: Vec<f64> = y[..n].to_vec();
             for t in &h {
                 analysis::add_tone(&mut rest, &Tone { amp: -t.amp, ..*t }, ts, 0.0);
             }
-            let rest = detrend_cubic(&rest);
-            // Over whole-sample periods, the harmonics above those fitted repeat too.
-            match analysis::whole_sample_period(drive.freq_hz, ts, n) {
-                Some(p) => (by_average(&rest, p), "period_to_period"),
-                None => (analysis::rms(&rest), "period_to_period"),
-            }
+            (analysis::rms(&detrend_cubic(&rest)), "period_to_period")
         }
         DriveKind::Multisine => {
             let p = drive.period_samples.unwrap_or(1.0).round().max(1.0) as usize;
@@ -1223,6 +1227,22 @@ mod tests {
             assert!((d.freq_hz - 1.0).abs() < 1e-7 && d.thd < 1e-5, "{} Hz, thd {}", d.freq_hz, d.thd);
             // Every one of the ten periods, the last one too.
             assert_eq!((w.start, w.end), (0, n), "{}", w.why);
+        }
+    }
+
+    #[test]
+    fn a_triangle_s_period_is_where_it_matches_itself() {
+        // Its own harmonics pull the fundamental's tone off over few periods (a 1 Hz triangle
+        // over 5 s read as 0.999 Hz); over many short periods the multiple searched must not
+        // reach the next one (63 samples, 158 periods: 63.4 samples were read).
+        let tri = |n: usize, p: f64| -> Vec<f64> {
+            (0..n).map(|k| (2.0 / std::f64::consts::PI) * (TAU * k as f64 / p).sin().asin()).collect()
+        };
+        for (n, p) in [(50_000, 10_000.0), (9_954, 63.0), (9_954, 62.7), (20_000, 1_234.5)] {
+            let d = classify(&tri(n, p), 1e-3);
+            assert_eq!(d.kind, DriveKind::Periodic);
+            let got = d.period_samples.unwrap();
+            assert!((got - p).abs() < 1e-3 * p.max(100.0) / 100.0, "{n} samples of {p}: {got}");
         }
     }
 
