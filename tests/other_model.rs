@@ -27,7 +27,7 @@ fn stack(u: &[f64]) -> Vec<f64> {
     let radii: Vec<f64> = (0..10).map(|i| 10.0 * i as f64).collect();
     let w: Vec<f64> = (0..10).map(|i| (-(i as f64) / 3.0).exp()).collect();
     let wsum: f64 = w.iter().sum();
-    let mut z = vec![0.0f64; 10];
+    let mut z = [0.0f64; 10];
     // The mode: bilinear transform of w²/(s² + 2ζws + w²).
     let wn = TAU * 2000.0;
     let k = 2.0 / TS;
