@@ -15,24 +15,31 @@
 //!   jumps between two samples: the cubic departs there, the median does not).
 //!
 //! The output must be smooth about it: the cubic's departures 3 to 8 samples away are
-//! [`LOCAL_FACTOR`] times smaller. The threshold is the larger of [`SPIKE_SIGMAS`] times the robust spread of the cubic's
-//! departures (1.4826 times their median absolute value: the noise, quantisation included)
-//! and [`SPIKE_SPAN_REL`] of the output's span (a spike smaller than that weighs nothing
-//! against what the analyses measure). The largest departures first, a spike is a run of
+//! [`LOCAL_FACTOR`] times smaller. The threshold is the larger of [`SPIKE_SIGMAS`] times
+//! the robust spread of the cubic's departures (1.4826 times their median absolute value:
+//! the noise, quantisation included) and [`SPIKE_SPAN_REL`] of the output's span (a dropout
+//! reads far off; the output's own kink where the drive steps off departs by about 1 %, and
+//! is left alone). The largest departures first, a spike is a run of
 //! one or two samples (at most [`MAX_RUN`]) whose replacement leaves its neighbourhood
 //! smooth: the samples beside it within the threshold of their own neighbours' cubic. A run
 //! no such replacement smooths (three samples or more, a ringing that alternates from
-//! sample to sample) is something the output does. More than [`MAX_SHARE`] of the samples is not
+//! sample to sample) is something the output does. The four samples a run is filled from
+//! must be clean: their cubic reaches the sample just beyond them on each side to within
+//! [`EXTRAPOLATION_FACTOR`] thresholds. More than [`MAX_SHARE`] of the samples is not
 //! a few dropouts, and nothing is repaired. A spike is replaced by the cubic through the
 //! two clean samples on each side of its run.
 
 /// A spike departs by this many times the robust spread of the cubic's departures.
 pub const SPIKE_SIGMAS: f64 = 10.0;
-/// …and by at least this fraction of the output's span (0.1 % to 99.9 % quantiles).
-pub const SPIKE_SPAN_REL: f64 = 0.005;
+/// …and by at least this fraction of the output's span (0.1 % to 99.9 % quantiles): a dropout
+/// reads far off; a kink where the drive steps off departs from the cubic by about 1 %.
+pub const SPIKE_SPAN_REL: f64 = 0.03;
 /// A spike departs by this many times the median departure 3 to 8 samples about it (a
 /// ringing mode near Nyquist after a step departs as much all about it).
 pub const LOCAL_FACTOR: f64 = 4.0;
+/// The cubic a spike is filled from reaches the samples just beyond its four to within this
+/// many thresholds.
+pub const EXTRAPOLATION_FACTOR: f64 = 4.0;
 /// Longest run of consecutive samples taken as one spike.
 pub const MAX_RUN: usize = 2;
 /// Largest share of the samples that may be spikes for them to be repaired.
@@ -70,10 +77,13 @@ pub fn repair(y: &mut [f64]) -> Option<Spikes> {
         return None;
     }
     // Off both its neighbours' cubic and their median, where the output is smooth about it:
-    // the departure from the cubic.
+    // the departure from the median (a dropout's neighbour departs from the cubic, which the
+    // dropout pulls, by more than the dropout itself when it is a pair; from the median, by
+    // a step of the output at most).
     let off = |y: &[f64], k: usize| -> Option<f64> {
         let d = (y[k] - cubic(y, k)).abs();
-        if !(d > threshold && (y[k] - median(y[k - 2..=k + 2].to_vec())).abs() > threshold) {
+        let dm = (y[k] - median(y[k - 2..=k + 2].to_vec())).abs();
+        if !(d > threshold && dm > threshold) {
             return None;
         }
         // The cubic's departures 3 to 8 samples away do not involve `y[k]`.
@@ -81,7 +91,7 @@ pub fn repair(y: &mut [f64]) -> Option<Spikes> {
             .filter(|&j| j.abs_diff(k) >= 3 && j >= 2 && j + 2 < n)
             .map(|j| (y[j] - cubic(y, j)).abs())
             .collect();
-        (d > LOCAL_FACTOR * median(around)).then_some(d)
+        (d > LOCAL_FACTOR * median(around)).then_some(dm)
     };
     let mut flagged: Vec<(usize, f64)> = (2..n - 2).filter_map(|k| off(y, k).map(|d| (k, d))).collect();
     // A spike flags its neighbours too (on a steep slope, by about one step): three per spike.
@@ -100,26 +110,39 @@ pub fn repair(y: &mut [f64]) -> Option<Spikes> {
         // through the two samples on each side leaves its neighbourhood smooth: the samples
         // beside it within the threshold of their own neighbours' cubic. None does: a run
         // of three or more, a ringing, something the output does.
-        let smooth_without = |a: usize, b: usize| -> Option<Vec<f64>> {
+        let smooth_without = |a: usize, b: usize| -> Option<(f64, Vec<f64>)> {
             if a < 4 || b + 4 >= n {
                 return None;
             }
             let xs = [a as f64 - 2.0, a as f64 - 1.0, b as f64 + 1.0, b as f64 + 2.0];
             let ys = [y[a - 2], y[a - 1], y[b + 1], y[b + 2]];
+            // The samples it is filled from must be clean: their cubic reaches the samples
+            // just beyond them (a dropout among them throws it far off; without this, a
+            // dropout pair's neighbours, filled from the pair, looked smooth with it).
+            let reach = EXTRAPOLATION_FACTOR * threshold;
+            if [a - 3, b + 3].iter().any(|&j| (y[j] - lagrange(&xs, &ys, j as f64)).abs() > reach) {
+                return None;
+            }
             let fill: Vec<f64> = (a..=b).map(|i| lagrange(&xs, &ys, i as f64)).collect();
             let at = |i: usize| if (a..=b).contains(&i) { fill[i - a] } else { y[i] };
             // The samples on either side (not two away: another dropout 4 samples off would
             // keep both from being repaired).
-            let smooth = [a - 1, b + 1].into_iter().all(|j| {
-                let c = (-at(j - 2) + 4.0 * at(j - 1) + 4.0 * at(j + 1) - at(j + 2)) / 6.0;
-                (at(j) - c).abs() <= threshold
-            });
-            smooth.then_some(fill)
+            let worst = [a - 1, b + 1]
+                .into_iter()
+                .map(|j| {
+                    let c = (-at(j - 2) + 4.0 * at(j - 1) + 4.0 * at(j + 1) - at(j + 2)) / 6.0;
+                    (at(j) - c).abs()
+                })
+                .fold(0.0, f64::max);
+            (worst <= threshold).then_some((worst, fill))
         };
-        let Some((a, fill)) = [(k, k), (k - 1, k), (k, k + 1)]
-            .into_iter()
-            .find_map(|(a, b)| smooth_without(a, b).map(|f| (a, f)))
-        else {
+        // The sample alone if that smooths it, else the pair that smooths it most.
+        let Some((a, (_, fill))) = smooth_without(k, k).map(|f| (k, f)).or_else(|| {
+            [(k - 1, k), (k, k + 1)]
+                .into_iter()
+                .filter_map(|(a, b)| smooth_without(a, b).map(|f| (a, f)))
+                .min_by(|x, y| x.1.0.total_cmp(&y.1.0))
+        }) else {
             continue;
         };
         for (i, v) in fill.into_iter().enumerate() {
