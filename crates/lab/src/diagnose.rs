@@ -731,9 +731,14 @@ impl Diagnosis {
         };
         let _ = writeln!(
             s,
-            "output fundamental {:.3} µm, noise floor {:.4} µm; baseline {} (free run): held-out RMS {:.4} µm, {}",
+            "output fundamental {:.3} µm, noise floor {:.4} µm{}; baseline {} (free run): held-out RMS {:.4} µm, {}",
             self.output_amplitude_um,
             self.noise_um.0,
+            if self.noise_um.1 == "quantisation" {
+                " (the sensor's resolution: its steps' RMS error)"
+            } else {
+                ""
+            },
             self.baseline.name(),
             self.baseline_rms_um,
             fit(&self.baseline_check),
@@ -786,7 +791,36 @@ impl Diagnosis {
             );
         }
         let not_kept = self.not_kept();
-        if self.findings.is_empty() {
+        if self.findings.is_empty() && r.rms_um > crate::periodic::NOISE_MULTIPLE * self.noise_um.0 {
+            // Not "the model accounts for the record": say what it misses.
+            let top = r.harmonics.iter().enumerate().max_by(|a, b| a.1.amp.total_cmp(&b.1.amp));
+            let parts = [
+                (
+                    r.above_um,
+                    format!(
+                        "periodic with the drive above its {}th harmonic (faster than the model follows: sharp corners, a converter's steps)",
+                        r.harmonics.len()
+                    ),
+                ),
+                (
+                    top.map_or(0.0, |(_, h)| h.amp / std::f64::consts::SQRT_2),
+                    top.map_or(String::new(), |(i, h)| {
+                        format!("its {} harmonic at {:.1} Hz", ordinal(i as u32 + 1), h.freq_hz)
+                    }),
+                ),
+                (r.trend_rms_um, "a slow trend".to_string()),
+                (r.noise_rms_um, "what does not repeat with the drive".to_string()),
+            ];
+            let (rms, what) = parts.iter().max_by(|a, b| a.0.total_cmp(&b.0)).cloned().unwrap_or_default();
+            let _ = writeln!(
+                s,
+                "\nfindings: none that can be named; the baseline leaves {:.4} µm held out, {:.0} times the noise floor, \
+                 and no term tried removed it by enough to keep; most of it ({rms:.4} µm RMS) is {what}{}",
+                r.rms_um,
+                r.rms_um / self.noise_um.0.max(1e-300),
+                if not_kept.is_empty() { "" } else { "; the terms below gained but were not kept" }
+            );
+        } else if self.findings.is_empty() {
             let _ = writeln!(
                 s,
                 "\nfindings: none; no term was kept (residual noise {:.4} µm of {:.4} µm){}",

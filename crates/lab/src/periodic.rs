@@ -139,8 +139,10 @@ pub struct PeriodicDiagnosis {
     pub trials: Vec<TermTrial>,
     /// What was found, most important first.
     pub findings: Vec<Finding>,
-    /// The output's noise floor (µm, from period to period).
+    /// The output's noise floor (µm, from period to period, at least the sensor's steps').
     pub noise_um: f64,
+    /// How it was measured: `period_to_period`, or `quantisation` (the sensor's steps).
+    pub noise_method: &'static str,
     /// RMS of the output over the held-out part, its mean removed (µm).
     pub output_rms_um: f64,
 }
@@ -322,10 +324,11 @@ pub fn diagnose(
         let m = analysis::mean(&ys);
         (ys.iter().map(|v| (v - m) * (v - m)).sum::<f64>() / ys.len().max(1) as f64).sqrt()
     };
-    let noise_um = {
-        let per: Vec<f64> =
-            sets.iter().map(|s| steady::noise_floor(&s.y[s.start..s.end], ts, &drive).0).collect();
-        (per.iter().map(|v| v * v).sum::<f64>() / per.len() as f64).sqrt()
+    let (noise_um, noise_method) = {
+        let per: Vec<(f64, &'static str)> =
+            sets.iter().map(|s| steady::noise_floor(&s.y[s.start..s.end], ts, &drive)).collect();
+        let how = if per.iter().any(|p| p.1 == "quantisation") { "quantisation" } else { "period_to_period" };
+        ((per.iter().map(|v| v.0 * v.0).sum::<f64>() / per.len() as f64).sqrt(), how)
     };
     // A model's held-out residual: RMS, check, levels at the lines.
     let evaluate = |label: &str, m: TermModel| -> Result<ModelStep, DiagnoseError> {
@@ -618,6 +621,7 @@ pub fn diagnose(
         trials,
         findings,
         noise_um,
+        noise_method,
         output_rms_um,
     })
 }
@@ -832,6 +836,7 @@ impl PeriodicDiagnosis {
             "periods": self.periods,
             "held_out": match self.held_out { HeldOut::Realisations => "realisations", HeldOut::Periods => "periods" },
             "noise_um": self.noise_um,
+            "noise_method": self.noise_method,
             "output_rms_um": self.output_rms_um,
             "lines": {
                 "odd": self.odd.as_ref().map(level_json),
@@ -890,8 +895,14 @@ impl PeriodicDiagnosis {
         );
         let _ = writeln!(
             s,
-            "output {:.3} µm RMS, noise floor {:.4} µm (from period to period)",
-            self.output_rms_um, self.noise_um
+            "output {:.3} µm RMS, noise floor {:.4} µm ({})",
+            self.output_rms_um,
+            self.noise_um,
+            if self.noise_method == "quantisation" {
+                "the sensor's resolution: its steps' RMS error"
+            } else {
+                "from period to period"
+            }
         );
         let lv = |l: &Option<Level>, what: &str| match l {
             Some(l) => format!(

@@ -1048,9 +1048,40 @@ fn max_correlation(u: &[f64], y: &[f64], lags: usize) -> f64 {
 
 /// The output's noise floor (µm) in a window and how it was measured: for a periodic
 /// drive what does not repeat from period to period (a sine or periodic drive: the output
-/// less its harmonics of the drive and a slow cubic trend; a multisine: less its average
-/// period), else from the second difference (an upper bound for a smooth output).
+/// less its harmonics of the drive and a slow cubic trend, or less its average period and
+/// the trend over whole-sample periods; a multisine: less its average period), else from the
+/// second difference (an upper bound for a smooth output); at least the RMS error `q/√12`
+/// of the grid of step `q` the output's values lie on ([`resolution`]: `"quantisation"`).
 pub fn noise_floor(y: &[f64], ts: f64, drive: &Drive) -> (f64, &'static str) {
+    let (noise, how) = noise_floor_of_drive(y, ts, drive);
+    // A sensor's steps repeat with an output that repeats: they stay out of what differs
+    // from period to period, yet no model fits them.
+    match resolution(y) {
+        Some(q) if q / 12f64.sqrt() > noise => (q / 12f64.sqrt(), "quantisation"),
+        _ => (noise, how),
+    }
+}
+
+/// The step of the grid `y`'s values lie on (a sensor's or converter's resolution, µm), if
+/// they lie on one: fewer distinct values than a quarter of the samples, every gap between
+/// neighbouring values a whole multiple of the smallest (to 10⁻³ of it).
+pub fn resolution(y: &[f64]) -> Option<f64> {
+    let mut v: Vec<f64> = y.iter().copied().filter(|x| x.is_finite()).collect();
+    v.sort_by(f64::total_cmp);
+    v.dedup();
+    if v.len() < MIN_LEVELS || v.len() * 4 > y.len() {
+        return None;
+    }
+    let q = v.windows(2).map(|w| w[1] - w[0]).fold(f64::INFINITY, f64::min);
+    let on_grid = v.windows(2).all(|w| {
+        let k = (w[1] - w[0]) / q;
+        (k - k.round()).abs() <= 1e-3 * k.max(1.0)
+    });
+    (q > 0.0 && q.is_finite() && on_grid).then_some(q)
+}
+
+/// [`noise_floor`] from what does not repeat with the drive alone.
+fn noise_floor_of_drive(y: &[f64], ts: f64, drive: &Drive) -> (f64, &'static str) {
     // What does not repeat from one period of `p` samples to the next: every harmonic, the
     // fast ones too (a triangle's corners, a converter's steps at a fraction of the sampling
     // rate), without fitting them.

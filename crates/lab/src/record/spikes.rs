@@ -64,12 +64,12 @@ pub fn repair(y: &mut [f64]) -> Option<Spikes> {
         return None;
     }
     let cubic = |y: &[f64], k: usize| (-y[k - 2] + 4.0 * y[k - 1] + 4.0 * y[k + 1] - y[k + 2]) / 6.0;
-    let departures: Vec<f64> = (2..n - 2).map(|k| (y[k] - cubic(y, k)).abs()).collect();
-    let spread = 1.4826 * median(departures.clone());
+    let spread = 1.4826 * median((2..n - 2).map(|k| (y[k] - cubic(y, k)).abs()).collect());
     let span = {
         let mut s: Vec<f64> = y.to_vec();
-        s.sort_by(f64::total_cmp);
-        let q = |p: f64| s[((p * (n - 1) as f64).round() as usize).min(n - 1)];
+        let mut q = |p: f64| {
+            *s.select_nth_unstable_by(((p * (n - 1) as f64).round() as usize).min(n - 1), f64::total_cmp).1
+        };
         q(0.999) - q(0.001)
     };
     let threshold = (SPIKE_SIGMAS * spread).max(SPIKE_SPAN_REL * span);
@@ -82,8 +82,11 @@ pub fn repair(y: &mut [f64]) -> Option<Spikes> {
     // a step of the output at most).
     let off = |y: &[f64], k: usize| -> Option<f64> {
         let d = (y[k] - cubic(y, k)).abs();
+        if d.is_nan() || d <= threshold {
+            return None;
+        }
         let dm = (y[k] - median(y[k - 2..=k + 2].to_vec())).abs();
-        if !(d > threshold && dm > threshold) {
+        if dm.is_nan() || dm <= threshold {
             return None;
         }
         // The cubic's departures 3 to 8 samples away do not involve `y[k]`.
