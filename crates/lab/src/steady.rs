@@ -344,6 +344,27 @@ fn classify_near(u: &[f64], ts: f64, near_hz: Option<f64>) -> Drive {
     }
 }
 
+/// `Σ_k (x[k] − x̄)(x[k + lag] − x̄)` for every lag `0..n`, by one FFT of the record padded
+/// to twice its length (no wrap-around).
+fn lagged_products(x: &[f64]) -> Vec<f64> {
+    let n = x.len();
+    let m = analysis::mean(x);
+    let len = (2 * n).next_power_of_two();
+    let mut buf: Vec<Complex<f64>> = x
+        .iter()
+        .map(|&v| Complex::new(v - m, 0.0))
+        .chain(std::iter::repeat(Complex::new(0.0, 0.0)))
+        .take(len)
+        .collect();
+    let mut planner = FftPlanner::new();
+    planner.plan_fft_forward(len).process(&mut buf);
+    for c in buf.iter_mut() {
+        *c = Complex::new(c.norm_sqr(), 0.0);
+    }
+    planner.plan_fft_inverse(len).process(&mut buf);
+    buf[..n].iter().map(|c| c.re / len as f64).collect()
+}
+
 /// Largest relative error of a period estimate [`matched_period`] corrects.
 pub const PERIOD_SEARCH_REL: f64 = 0.05;
 
@@ -359,19 +380,7 @@ pub fn matched_period(x: &[f64], p0: f64) -> Option<f64> {
         return None;
     }
     let m = analysis::mean(x);
-    let len = (2 * n).next_power_of_two();
-    let mut buf: Vec<Complex<f64>> = x
-        .iter()
-        .map(|&v| Complex::new(v - m, 0.0))
-        .chain(std::iter::repeat(Complex::new(0.0, 0.0)))
-        .take(len)
-        .collect();
-    let mut planner = FftPlanner::new();
-    planner.plan_fft_forward(len).process(&mut buf);
-    for c in buf.iter_mut() {
-        *c = Complex::new(c.norm_sqr(), 0.0);
-    }
-    planner.plan_fft_inverse(len).process(&mut buf);
+    let lagged = lagged_products(x);
     // Energies of the first and the last n − lag samples, by prefix sums.
     let mut prefix = Vec::with_capacity(n + 1);
     prefix.push(0.0);
@@ -384,7 +393,7 @@ pub fn matched_period(x: &[f64], p0: f64) -> Option<f64> {
         let over = n - lag;
         let head = prefix[over];
         let tail = prefix[n] - prefix[lag];
-        (head + tail - 2.0 * buf[lag].re / len as f64) / over as f64
+        (head + tail - 2.0 * lagged[lag]) / over as f64
     };
     let least = |lo: f64, hi: f64| -> Option<f64> {
         let (lo, hi) = ((lo.floor() as usize).max(1), (hi.ceil() as usize).min(n.saturating_sub(2)));
@@ -428,26 +437,13 @@ pub fn autocorrelation_periods(x: &[f64]) -> Vec<f64> {
     if n < 16 {
         return vec![];
     }
-    let m = analysis::mean(x);
-    let len = (2 * n).next_power_of_two();
-    let mut buf: Vec<Complex<f64>> = x
-        .iter()
-        .map(|&v| Complex::new(v - m, 0.0))
-        .chain(std::iter::repeat(Complex::new(0.0, 0.0)))
-        .take(len)
-        .collect();
-    let mut planner = FftPlanner::new();
-    planner.plan_fft_forward(len).process(&mut buf);
-    for c in buf.iter_mut() {
-        *c = Complex::new(c.norm_sqr(), 0.0);
-    }
-    planner.plan_fft_inverse(len).process(&mut buf);
-    let c0 = buf[0].re;
+    let lagged = lagged_products(x);
+    let c0 = lagged[0];
     if c0.is_nan() || c0 <= 0.0 {
         return vec![];
     }
     let half = n / 2;
-    let r: Vec<f64> = (0..=half).map(|k| buf[k].re / c0 * n as f64 / (n - k) as f64).collect();
+    let r: Vec<f64> = (0..=half).map(|k| lagged[k] / c0 * n as f64 / (n - k) as f64).collect();
     let Some(dip) = r.iter().position(|&v| v < 0.5) else { return vec![] };
     let best = r[dip..].iter().copied().fold(f64::NEG_INFINITY, f64::max);
     if best < PERIODIC_CORRELATION {
