@@ -798,8 +798,8 @@ impl Diagnosis {
                 (
                     r.above_um,
                     format!(
-                        "periodic with the drive above its {}th harmonic (faster than the model follows: sharp corners, a converter's steps)",
-                        r.harmonics.len()
+                        "periodic with the drive above its {} harmonic (faster than the model follows: sharp corners, a converter's steps)",
+                        ordinal(r.harmonics.len() as u32)
                     ),
                 ),
                 (
