@@ -113,6 +113,8 @@ pub fn import_json(i: &Imported) -> serde_json::Value {
         i.info.columns.iter().map(|(role, from)| (role.to_string(), serde_json::json!(from))).collect();
     serde_json::json!({
         "separator": i.info.separator.name(),
+        "decimal_comma": i.info.decimal_comma,
+        "preamble": i.info.preamble.map(|p| serde_json::json!({ "lines": p.lines, "table_line": p.table_line })),
         "header": i.info.header,
         "columns": columns,
         "u_unit": i.info.u_unit.name(),

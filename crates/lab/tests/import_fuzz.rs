@@ -17,7 +17,7 @@ fn valid(layout: u8, rows: usize) -> String {
         let u = (std::f64::consts::TAU * 20.0 * t).sin();
         (t, u, 10.0 * u + 0.01 * (k % 7) as f64)
     };
-    match layout % 4 {
+    match layout % 6 {
         0 => {
             s.push_str("# comment\nt,u,y\n");
             for k in 0..rows {
@@ -38,11 +38,27 @@ fn valid(layout: u8, rows: usize) -> String {
                 s.push_str(&format!("  {u}   {y}\n"));
             }
         }
-        _ => {
+        3 => {
             s.push_str(",y,t,u\r\n");
             for k in 0..rows {
                 let (t, u, y) = row(k);
                 s.push_str(&format!("{k},{y},{t},{u}\r\n"));
+            }
+        }
+        4 => {
+            // A spreadsheet's export with decimal commas and quoted names.
+            s.push_str("\"Time, s\";\"Voltage, V\";\"Position, um\"\n");
+            for k in 0..rows {
+                let (t, u, y) = row(k);
+                s.push_str(&format!("{t};{u};{y}\n").replace('.', ","));
+            }
+        }
+        _ => {
+            // An instrument's preamble, then a header naming a column no row fills.
+            s.push_str("LabVIEW Measurement\nWriter_Version\t2\n***End_of_Header***\nX_Value\tVoltage\tDisplacement\tComment\n");
+            for k in 0..rows {
+                let (t, u, y) = row(k);
+                s.push_str(&format!("{t}\t{u}\t{y}\n"));
             }
         }
     }
@@ -173,7 +189,7 @@ proptest! {
 
 #[test]
 fn the_unmutated_layouts_are_read() {
-    for layout in 0..4 {
+    for layout in 0..6 {
         let opts = if layout == 2 { options(1) } else { ImportOptions::default() };
         let r = import_text(&valid(layout, 500), "v.csv", &opts)
             .unwrap_or_else(|e| panic!("layout {layout}: {e}"));

@@ -268,6 +268,11 @@ pub enum TimeSource {
 pub struct ImportInfo {
     /// The separator found.
     pub separator: Separator,
+    /// Whether numbers were written with a decimal comma (`0,25`; with a separator other
+    /// than the comma).
+    pub decimal_comma: bool,
+    /// Lines before the table that belong to no table (an instrument's preamble), skipped.
+    pub preamble: Option<Preamble>,
     /// Whether the file had a header row.
     pub header: bool,
     /// Each signal read and the column it came from (its header name, or its position).
@@ -280,6 +285,16 @@ pub struct ImportInfo {
     pub time: TimeSource,
     /// The isolated spikes of `y` repaired ([`super::spikes`]), if any.
     pub spikes: Option<SpikeNote>,
+}
+
+/// Lines before the table, skipped: an instrument's preamble (`LabVIEW Measurement`,
+/// `Date<TAB>2024/05/01`, …).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Preamble {
+    /// How many lines were skipped (neither blank nor comments).
+    pub lines: usize,
+    /// The line (from 1) where the table starts: its header, or its first row.
+    pub table_line: usize,
 }
 
 /// Isolated spikes of `y` the importer repaired.
@@ -334,9 +349,18 @@ impl ImportInfo {
             TimeSource::SampleRate(hz) => format!("; times from --sample-rate {hz} Hz"),
         };
         let spikes = self.spikes.as_ref().map_or(String::new(), |s| format!("; {}", s.describe()));
+        let preamble = self.preamble.map_or(String::new(), |p| {
+            format!(
+                " from line {} ({} line{} before it skipped: they belong to no table)",
+                p.table_line,
+                p.lines,
+                if p.lines == 1 { "" } else { "s" }
+            )
+        });
         format!(
-            "{}-separated, {}; {}{time}{spikes}",
+            "{}-separated{}, {}{preamble}; {}{time}{spikes}",
             self.separator.name(),
+            if self.decimal_comma { " with decimal commas" } else { "" },
             if self.header { "with a header" } else { "no header" },
             cols.join(", ")
         )
@@ -377,14 +401,166 @@ impl Record {
     }
 }
 
-/// Splits a line into its fields (trimmed).
+/// Splits a line into its fields, trimmed, each stripped of one pair of surrounding double
+/// quotes; a separator between quotes belongs to the field (`"Time, s",Voltage`). Runs of
+/// whitespace are one separator.
 fn fields(line: &str, sep: Separator) -> Vec<&str> {
-    match sep {
-        Separator::Comma => line.split(',').map(str::trim).collect(),
-        Separator::Tab => line.split('\t').map(str::trim).collect(),
-        Separator::Semicolon => line.split(';').map(str::trim).collect(),
-        Separator::Whitespace => line.split_whitespace().collect(),
+    let is_sep = |c: char| match sep {
+        Separator::Comma => c == ',',
+        Separator::Tab => c == '\t',
+        Separator::Semicolon => c == ';',
+        Separator::Whitespace => c.is_whitespace(),
+    };
+    let mut out = Vec::new();
+    let (mut start, mut quoted) = (0, false);
+    for (i, c) in line.char_indices() {
+        if c == '"' {
+            quoted = !quoted;
+        } else if !quoted && is_sep(c) {
+            out.push(&line[start..i]);
+            start = i + c.len_utf8();
+        }
     }
+    out.push(&line[start..]);
+    if sep == Separator::Whitespace {
+        out.retain(|f| !f.trim().is_empty());
+    }
+    out.into_iter().map(unquote).collect()
+}
+
+/// `" \"Time (s)\" "` → `Time (s)`: trimmed, one pair of surrounding quotes removed.
+fn unquote(field: &str) -> &str {
+    let f = field.trim();
+    match f.strip_prefix('"').and_then(|f| f.strip_suffix('"')) {
+        Some(inner) => inner.trim(),
+        None => f,
+    }
+}
+
+/// The separator of one line: a tab, else a semicolon (never part of a number, while a comma
+/// may be a decimal comma), else a comma (unless the line is numbers with decimal commas
+/// between spaces), else runs of spaces. Quoted text does not count.
+fn separator_of(line: &str) -> Separator {
+    let mut quoted = false;
+    let (mut tab, mut semicolon, mut comma) = (false, false, false);
+    for c in line.chars() {
+        match c {
+            '"' => quoted = !quoted,
+            '\t' if !quoted => tab = true,
+            ';' if !quoted => semicolon = true,
+            ',' if !quoted => comma = true,
+            _ => {}
+        }
+    }
+    // Numbers with decimal commas between spaces: `0,001  0,25  12,5`.
+    let spaced_commas = || {
+        let f: Vec<&str> = line.split_whitespace().collect();
+        f.len() >= 2 && f.iter().all(|x| number(x, true).is_some()) && f.iter().any(|x| has_decimal_comma(x))
+    };
+    if tab {
+        Separator::Tab
+    } else if semicolon {
+        Separator::Semicolon
+    } else if comma && !spaced_commas() {
+        Separator::Comma
+    } else {
+        Separator::Whitespace
+    }
+}
+
+/// A field as a number: Rust's `f64` syntax, or with `decimal_comma` one comma standing for
+/// the point (`-0,25`, `1,5e-3`).
+fn number(field: &str, decimal_comma: bool) -> Option<f64> {
+    if decimal_comma && field.contains(',') {
+        if field.contains('.') || field.matches(',').count() > 1 {
+            return None;
+        }
+        return field.replacen(',', ".", 1).parse().ok();
+    }
+    field.parse().ok()
+}
+
+/// Whether a field is written with a decimal comma (`0,25`, `-12,5e-3`): digits on both
+/// sides of one comma, no point.
+fn has_decimal_comma(field: &str) -> bool {
+    let Some((int, frac)) = field.split_once(',') else { return false };
+    let int = int.trim_start_matches(['+', '-']);
+    !field.contains('.')
+        && !frac.contains(',')
+        && !int.is_empty()
+        && int.bytes().all(|b| b.is_ascii_digit())
+        && frac.bytes().next().is_some_and(|b| b.is_ascii_digit())
+        && frac.parse::<f64>().is_ok()
+}
+
+/// Consecutive numeric rows that make a table: the first line of such a run starts the data.
+const TABLE_RUN: usize = 3;
+
+/// Where the table starts in the lines that are neither blank nor comments, found before
+/// anything is read.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct Layout {
+    /// The index (into those lines) of the header, or of the first row without one.
+    start: usize,
+    /// The table's separator.
+    sep: Separator,
+    /// Whether numbers are written with a decimal comma (a separator other than the comma).
+    decimal_comma: bool,
+}
+
+/// The table's layout: the separator, the decimal comma, and the lines before the header
+/// that belong to no table (an instrument's preamble: `LabVIEW Measurement`,
+/// `Date<TAB>2024/05/01`, …).
+///
+/// The data start at the first run of [`TABLE_RUN`] rows (fewer at the end of the file)
+/// that are all numbers, at least two per row, as many per row, under the separator of the
+/// run's first row. The line just before it is the header if it has as many fields (or
+/// more). Lines before the header are a preamble only if the first line does not have the
+/// table's shape itself, the run is whole, and none of them is a row of numbers: a malformed
+/// row after a normal header is an error at that row, never a reason to skip lines.
+fn layout(lines: &[(usize, &str)]) -> Layout {
+    // While looking for the run a comma inside a field may be a decimal one; which it is
+    // comes from the first number written with a fraction.
+    let lenient = |sep: Separator| sep != Separator::Comma;
+    let used = |f: &[&str]| f.iter().rposition(|x| !x.is_empty()).map_or(0, |i| i + 1);
+    let row_width = |line: &str, sep: Separator| -> Option<usize> {
+        let f = fields(line, sep);
+        let n = used(&f);
+        (n >= 2 && f[..n].iter().all(|x| number(x, lenient(sep)).is_some())).then_some(n)
+    };
+    let width_of = |line: &str, sep: Separator| used(&fields(line, sep));
+    let with_comma = |from: &[(usize, &str)], sep: Separator| {
+        sep != Separator::Comma
+            && from
+                .iter()
+                .flat_map(|(_, l)| fields(l, sep))
+                .find(|f| f.contains(['.', ',']) && number(f, true).is_some())
+                .is_some_and(has_decimal_comma)
+    };
+    let first_sep = separator_of(lines[0].1);
+    let plain = |sep: Separator| Layout { start: 0, sep, decimal_comma: with_comma(lines, sep) };
+    for i in 0..lines.len() {
+        let sep = separator_of(lines[i].1);
+        let Some(w) = row_width(lines[i].1, sep) else { continue };
+        let run = &lines[i..lines.len().min(i + TABLE_RUN)];
+        if !run.iter().all(|(_, l)| row_width(l, sep) == Some(w)) {
+            continue;
+        }
+        if i <= 1 || width_of(lines[0].1, sep) == w {
+            // The first line is the header or the first row: no preamble.
+            return plain(sep);
+        }
+        if run.len() < TABLE_RUN || lines[..i].iter().any(|(_, l)| row_width(l, separator_of(l)).is_some()) {
+            // A short table, or a row of numbers before the run: not a preamble; read it
+            // all (and fail where a row is malformed).
+            return plain(first_sep);
+        }
+        // The header names the rows' fields, and perhaps more (`X_Value<TAB>Voltage<TAB>
+        // Displacement<TAB>Comment` over rows of three numbers).
+        let start = if width_of(lines[i - 1].1, sep) >= w { i - 1 } else { i };
+        return Layout { start, sep, decimal_comma: with_comma(&lines[i..], sep) };
+    }
+    plain(first_sep)
 }
 
 fn is_comment(line: &str) -> bool {
@@ -433,7 +609,7 @@ const TIME_UNITS: [&str; 5] = ["s", "ms", "us", "µs", "μs"];
 /// The role one word of a header names.
 fn role_of(word: &str) -> Option<Col> {
     match word {
-        "t" | "time" | "times" | "timestamp" | "sec" | "seconds" => Some(Col::T),
+        "t" | "time" | "times" | "timestamp" | "sec" | "seconds" | "x_value" => Some(Col::T),
         "u" | "v" | "volt" | "volts" | "voltage" | "input" | "drive" | "command" | "cmd" | "vin"
         | "excitation" => Some(Col::U),
         "y" | "disp" | "displacement" | "position" | "pos" | "deflection" | "output" | "out" | "stroke"
@@ -443,7 +619,8 @@ fn role_of(word: &str) -> Option<Col> {
     }
 }
 
-/// `"disp (mm)"` → `("disp", Some("mm"))`, `"time_s"` → `("time", Some("s"))`, `"y"` → `("y", None)`.
+/// `"disp (mm)"` → `("disp", Some("mm"))`, `"time_s"` → `("time", Some("s"))`, `"voltage, mv"`
+/// → `("voltage", Some("mv"))`, `"y"` → `("y", None)`.
 fn split_unit(name: &str) -> (&str, Option<&str>) {
     const UNITS: [&str; 14] =
         ["s", "ms", "us", "µs", "μs", "v", "mv", "kv", "m", "mm", "um", "µm", "μm", "nm"];
@@ -456,7 +633,7 @@ fn split_unit(name: &str) -> (&str, Option<&str>) {
     if let Some(cut) = name.rfind(['_', ' ', '/']) {
         let unit = &name[cut + 1..];
         if UNITS.contains(&unit) && cut > 0 {
-            return (name[..cut].trim_end(), Some(unit));
+            return (name[..cut].trim_end_matches([' ', ',']), Some(unit));
         }
     }
     (name, None)
@@ -518,33 +695,39 @@ pub fn import_text(text: &str, source: &str, opts: &ImportOptions) -> Result<Imp
     let err = |line: usize, kind| RecordError::new(source, Some(At::Line(line)), kind);
     let whole = |kind| RecordError::new(source, None, kind);
     let text = text.strip_prefix('\u{feff}').unwrap_or(text);
-    let mut lines = text
+    let all: Vec<(usize, &str)> = text
         .split('\n')
         .enumerate()
         .map(|(i, l)| (i + 1, l.trim()))
         .filter(|(_, l)| !l.is_empty() && !is_comment(l))
-        .peekable();
+        .collect();
+    if all.is_empty() {
+        return Err(whole(ErrorKind::Empty));
+    }
+    let Layout { start, sep, decimal_comma } = layout(&all);
+    let preamble = (start > 0).then(|| Preamble { lines: start, table_line: all[start].0 });
+    let mut lines = all[start..].iter().copied().peekable();
 
-    // The first line: separator and header.
+    // The first line of the table: header or not.
     let Some(&(first_line, first)) = lines.peek() else {
         return Err(whole(ErrorKind::Empty));
     };
-    let sep = if first.contains('\t') {
-        Separator::Tab
-    } else if first.contains(',') {
-        Separator::Comma
-    } else if first.contains(';') {
-        Separator::Semicolon
-    } else {
-        Separator::Whitespace
-    };
     let first_fields = fields(first, sep);
-    let header = first_fields.iter().any(|f| !f.is_empty() && f.parse::<f64>().is_err());
-    let names: Option<Vec<String>> = header.then(|| first_fields.iter().map(|s| s.to_string()).collect());
+    let header = first_fields.iter().any(|f| !f.is_empty() && number(f, decimal_comma).is_none());
+    let mut names: Option<Vec<String>> = header.then(|| first_fields.iter().map(|s| s.to_string()).collect());
+    let mut width = first_fields.len();
     if header {
         lines.next();
+        // A header may name trailing columns that no row has (an instrument's `Comment`
+        // over rows of numbers only): they are left out if they name no signal.
+        if let (Some(n), Some((_, row))) = (names.as_mut(), lines.peek()) {
+            let row_width = fields(row, sep).len();
+            if row_width < width && n[row_width..].iter().all(|x| recognise(x).0.is_none()) {
+                n.truncate(row_width);
+                width = row_width;
+            }
+        }
     }
-    let width = first_fields.len();
     let found = || found_list(names.as_deref(), width);
 
     // Which column is which, and the units the header states.
@@ -641,9 +824,14 @@ pub fn import_text(text: &str, source: &str, opts: &ImportOptions) -> Result<Imp
         }
         if opts.columns.is_none() {
             // Without --columns every named column must be one of the record's: a typo must
-            // not silently drop a signal.
+            // not silently drop a signal. A column empty on every row (an instrument's
+            // `Comment`) carries none.
             let names = names.as_deref().unwrap_or_default();
-            if let Some(i) = (0..width).find(|i| !names[*i].is_empty() && !slot.contains(&Some(*i))) {
+            let empty_throughout =
+                |i: usize| lines.clone().all(|(_, l)| fields(l, sep).get(i).is_none_or(|f| f.is_empty()));
+            if let Some(i) =
+                (0..width).find(|&i| !names[i].is_empty() && !slot.contains(&Some(i)) && !empty_throughout(i))
+            {
                 let kind = ErrorKind::UnknownColumn { name: excerpt(&names[i]), found: found() };
                 return Err(err(first_line, kind));
             }
@@ -706,7 +894,7 @@ pub fn import_text(text: &str, source: &str, opts: &ImportOptions) -> Result<Imp
         }
         for &(i, col, scale) in &wanted {
             let field = f[i];
-            let raw: f64 = field.parse().map_err(|_| {
+            let raw: f64 = number(field, decimal_comma).ok_or_else(|| {
                 err(line_no, ErrorKind::NotANumber { column: col.name().into(), text: excerpt(field) })
             })?;
             if !raw.is_finite() {
@@ -729,7 +917,8 @@ pub fn import_text(text: &str, source: &str, opts: &ImportOptions) -> Result<Imp
                         }
                     }
                     t.push(v);
-                    t_unit.push(last_digit_unit(field) * scale);
+                    t_unit
+                        .push(last_digit_unit(&field.replacen(',', ".", usize::from(decimal_comma))) * scale);
                 }
                 Col::U => u.push(v),
                 Col::Y => y.push(v),
@@ -757,7 +946,13 @@ pub fn import_text(text: &str, source: &str, opts: &ImportOptions) -> Result<Imp
                     return Err(err(line_of[k], ErrorKind::NonUniform { dt, median, tolerance }));
                 }
             }
-            let ts = (t[n - 1] - t[0]) / (n - 1) as f64;
+            // The ends as written are each off by half their last digit's unit (and by f64's
+            // rounding at their magnitude), shared over N − 1 steps: the plainest decimal
+            // within that is the interval (a Unix-time axis of a 1 kHz record reads 0.001 s,
+            // not 0.0010000000181).
+            let spread =
+                0.5 * (t_unit[0] + t_unit[n - 1]) + 4.0 * f64::EPSILON * (t[0].abs() + t[n - 1].abs());
+            let ts = plainest((t[n - 1] - t[0]) / (n - 1) as f64, spread / (n - 1) as f64);
             if let Some(hz) = opts.sample_rate_hz {
                 if (hz * ts - 1.0).abs() > UNIFORM_TOLERANCE {
                     return Err(whole(ErrorKind::RateMismatch { from_time_hz: 1.0 / ts, given_hz: hz }));
@@ -807,8 +1002,27 @@ pub fn import_text(text: &str, source: &str, opts: &ImportOptions) -> Result<Imp
     let record = Record { source: source.to_owned(), ts, t0, u, y, d: has_d.then_some(d) };
     Ok(Imported {
         record,
-        info: ImportInfo { separator: sep, header, columns, u_unit, y_unit, time, spikes },
+        info: ImportInfo {
+            separator: sep,
+            decimal_comma,
+            preamble,
+            header,
+            columns,
+            u_unit,
+            y_unit,
+            time,
+            spikes,
+        },
     })
+}
+
+/// The decimal with the fewest significant digits within `tolerance` of `x` (`x` itself if
+/// none with fewer than 17 is).
+fn plainest(x: f64, tolerance: f64) -> f64 {
+    (1..17)
+        .filter_map(|digits| format!("{x:.*e}", digits - 1).parse::<f64>().ok())
+        .find(|r| (r - x).abs() <= tolerance)
+        .unwrap_or(x)
 }
 
 /// The unit of the last digit of a decimal number as written: `0.0003` → 1e-4,

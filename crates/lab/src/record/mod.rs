@@ -14,16 +14,28 @@
 //! 0          0              0.000012
 //! 0.001      0.0627905195   0.000419
 //! ```
-//! - **Separators**: comma, tab, semicolon or runs of spaces, found from the first line that
-//!   is neither blank nor a comment. A trailing separator on data rows is tolerated.
+//! - **Separators**: tab, semicolon, comma or runs of spaces, found from the table's first
+//!   line (a tab before a semicolon before a comma, since a comma may be a decimal mark).
+//!   A trailing separator on data rows is tolerated. Fields may be quoted (`"Time (s)"`); a
+//!   separator between quotes belongs to the field.
+//! - **Decimal commas**: under a separator other than the comma, numbers may be written
+//!   `0,25` or `-1,5e-3` (a spreadsheet's export in many locales); which mark the file uses
+//!   comes from its first number with a fraction ([`ImportInfo::decimal_comma`]).
+//! - **Preamble**: lines before the table that belong to no table (an instrument's
+//!   `LabVIEW Measurement`, `Date<TAB>2024/05/01`, …) are skipped and said
+//!   ([`ImportInfo::preamble`]). The table starts at the first run of three rows of as many
+//!   numbers, and its header is the line just before if it names as many fields or more;
+//!   nothing is skipped when the first line already has the table's shape or a row of
+//!   numbers comes before the run, so a malformed row is an error at that row.
 //! - **Header or not**: a first line with a field that is not a number names the columns.
-//!   Names are matched case-insensitively, with a unit in brackets or after `_`/space
-//!   stripped: `t`, `time`, `timestamp`, `sec`; `u`, `v`, `voltage`, `volt`, `input`,
+//!   Names are matched case-insensitively, with a unit in brackets or after `_`/space/comma
+//!   stripped: `t`, `time`, `timestamp`, `sec`, `x_value`; `u`, `v`, `voltage`, `volt`, `input`,
 //!   `drive`, `command`, `vin`; `y`, `disp`, `displacement`, `position`, `pos`,
 //!   `deflection`, `output`; `d`, `ref`, `reference`, `target`, `setpoint`. A unit the header
 //!   states (`time_ms`, `Voltage (mV)`, `disp [mm]`) is applied unless a flag says otherwise.
 //!   Without `--columns` every named column must be one of these (a typo must not silently
-//!   drop a signal); unnamed columns (an empty first column, a pandas index) are ignored.
+//!   drop a signal); unnamed columns (an empty first column, a pandas index), columns empty
+//!   on every row, and trailing names no row fills (an instrument's `Comment`) are ignored.
 //!   A file without a header needs `--columns`.
 //! - **`--columns t=NAME|N,u=NAME|N,y=NAME|N[,d=NAME|N]`** ([`ColumnMap`]): names
 //!   (case-insensitive) or positions counting from 1; roles left out are found by name;
@@ -40,8 +52,8 @@
 //! - **Spikes**: isolated samples of `y` far from both their neighbours' cubic and their
 //!   median (a sensor's dropouts) are replaced and reported ([`spikes`],
 //!   [`ImportInfo::spikes`]); [`ImportOptions::keep_spikes`] (`--keep-spikes`) keeps them.
-//! - **Rows**: as many fields as the first line; each value one that Rust's `f64` parser
-//!   accepts (`1`, `-0.5`, `1e-3`, `+2.`). `NaN` and `inf` are rejected.
+//! - **Rows**: as many fields as the header (or the first row); each value one that Rust's `f64` parser
+//!   accepts (`1`, `-0.5`, `1e-3`, `+2.`), or with a decimal comma. `NaN` and `inf` are rejected.
 //! - **Text**: UTF-8, with or without a byte-order mark; LF or CRLF line ends.
 //! - **Errors** are one line naming the file and the line (counting every line from 1, the
 //!   header and comments included), and the column where one is at fault:
@@ -63,7 +75,9 @@
 //!
 //! ## Sample interval and uniform sampling
 //! With `N` samples, `Ts = (t_{N-1} − t_0)/(N − 1)`, which averages the rounding of `t`
-//! as written. Sampling is uniform if every step `Δt_k = t_k − t_{k−1}` satisfies
+//! as written; of the decimals within that rounding (half of the ends' last-digit units,
+//! and `f64`'s at their magnitude, over `N − 1`) the one with the fewest significant digits
+//! is taken, so a Unix-time axis of a 1 kHz record gives 0.001 s. Sampling is uniform if every step `Δt_k = t_k − t_{k−1}` satisfies
 //! ```text
 //! |Δt_k − Δt_med| ≤ 0.01·Δt_med + min(r_k, 0.5·Δt_med) + 4ε·(|t_k| + |t_{k−1}|)
 //! ```
@@ -91,7 +105,7 @@ mod write;
 pub use error::{At, EXCERPT_CHARS, ErrorKind, RecordError, excerpt};
 pub use import::{
     ColumnMap, ColumnRef, ImportInfo, ImportOptions, Imported, LengthUnit, MAX_SPAN_UM, MIN_SPAN_UM,
-    OptionError, Separator, SpikeNote, TimeSource, VoltUnit, import, import_text,
+    OptionError, Preamble, Separator, SpikeNote, TimeSource, VoltUnit, import, import_text,
 };
 pub use replay::{REPLAY_TOLERANCE_V, Replay, ReplayError};
 pub use write::{write_atomic, write_columns};

@@ -509,3 +509,101 @@ fn a_message_lists_at_most_eight_columns() {
     assert!(msg.contains("… 500 in all"), "{msg}");
     assert!(msg.len() < 400, "{} bytes", msg.len());
 }
+
+#[test]
+fn decimal_commas_under_semicolons_tabs_and_spaces() {
+    let by_position =
+        ImportOptions { columns: Some("t=1,u=2,y=3".parse().unwrap()), ..ImportOptions::default() };
+    // A spreadsheet's export where the comma is the decimal mark; the header names nothing
+    // the importer knows, so the columns are given.
+    let text = "Zeit [s];Spannung [V];Weg [µm]\n0;0;0,25\n0,001;-1,5;12,5\n0,002;1,5e-1;-3\n";
+    let i = import_with(text, &by_position).unwrap();
+    assert_eq!(i.record.u, [0.0, -1.5, 0.15]);
+    assert_eq!(i.record.y, [0.25, 12.5, -3.0]);
+    assert_eq!(i.record.ts, 0.001);
+    assert!(i.info.decimal_comma);
+    assert!(
+        i.info.describe().starts_with("semicolon-separated with decimal commas, with a header"),
+        "{}",
+        i.info.describe()
+    );
+    // The first rows may be integers: the mark comes from the first number with a fraction.
+    let i = import_with("t\tu\ty\n0\t0\t0\n1\t0\t0\n2\t0,5\t1,25\n", &ImportOptions::default()).unwrap();
+    assert_eq!((i.info.separator, i.info.decimal_comma), (Separator::Tab, true));
+    assert_eq!(i.record.y, [0.0, 0.0, 1.25]);
+    // Between spaces, with no header.
+    let i = import_with("0,000  0,5  1,25\n0,001  -0,5  2\n0,002  0  3,5\n", &by_position).unwrap();
+    assert_eq!((i.info.separator, i.info.decimal_comma), (Separator::Whitespace, true));
+    assert_eq!(i.record.y, [1.25, 2.0, 3.5]);
+    // Under commas a comma separates; a point with a decimal comma, or two commas, is no number.
+    let i = import_with("t,u,y\n0,0,1\n0.001,1,2\n", &ImportOptions::default()).unwrap();
+    assert!(!i.info.decimal_comma);
+    let e = import_with("t;u;y\n0;0,5;1\n0,001;1.000,5;2\n", &ImportOptions::default()).unwrap_err();
+    assert_eq!(e.to_string(), "bench.txt:3: column \"u\": \"1.000,5\" is not a number");
+}
+
+#[test]
+fn quoted_fields() {
+    // A spreadsheet quotes names and values; a separator between quotes is the field's.
+    let text =
+        "\"Time (s)\",\"Voltage, V\",\"Displacement (um)\"\n\"0\",\"0.5\",\"1\"\n\"0.001\",\"-0.5\",\"2\"\n";
+    let i = import_with(text, &ImportOptions::default()).unwrap();
+    assert_eq!(i.record.u, [0.5, -0.5]);
+    assert_eq!(i.record.y, [1.0, 2.0]);
+    assert_eq!(i.info.columns[1], ("u", "\"Voltage, V\"".to_string()));
+    let text = "\"Time, ms\";\"Voltage, mV\";\"Position, nm\"\n0;500;1000\n1;-500;2000\n";
+    let i = import_with(text, &ImportOptions::default()).unwrap();
+    assert_eq!(
+        (i.record.ts, i.record.u.clone(), i.record.y.clone()),
+        (0.001, vec![0.5, -0.5], vec![1.0, 2.0])
+    );
+}
+
+#[test]
+fn an_instruments_preamble_is_skipped_and_said() {
+    // A LabVIEW-style file: lines of metadata, then the header (naming a `Comment` column no
+    // row fills), then the rows.
+    let text = "LabVIEW Measurement\nWriter_Version\t2\nDate\t2024/05/01\n***End_of_Header***\n\
+                X_Value\tVoltage\tDisplacement\tComment\n0.000\t0\t1\n0.001\t0.5\t2\n0.002\t-0.5\t3\n0.003\t0\t4\n";
+    let i = import_with(text, &ImportOptions::default()).unwrap();
+    assert_eq!(i.record.y, [1.0, 2.0, 3.0, 4.0]);
+    assert_eq!(i.info.preamble, Some(Preamble { lines: 4, table_line: 5 }));
+    assert_eq!(
+        i.info.describe(),
+        "tab-separated, with a header from line 5 (4 lines before it skipped: they belong to no table); \
+         t = \"X_Value\", u = \"Voltage\", y = \"Displacement\""
+    );
+    // Without a header after the preamble, the columns are given.
+    let text = "Keyence LK-G5000\nSampling cycle: 1 ms\n0.000,0,1\n0.001,0.5,2\n0.002,-0.5,3\n";
+    let opts = ImportOptions { columns: Some("t=1,u=2,y=3".parse().unwrap()), ..ImportOptions::default() };
+    let i = import_with(text, &opts).unwrap();
+    assert_eq!((i.info.header, i.info.preamble), (false, Some(Preamble { lines: 2, table_line: 3 })));
+    // A column empty on every row is not a signal, one with values still needs a name.
+    let i = import_with("t,u,y,note\n0,0,1,\n0.001,1,2,\n", &ImportOptions::default()).unwrap();
+    assert_eq!(i.record.y, [1.0, 2.0]);
+    assert!(import_with("t,u,y,note\n0,0,1,\n0.001,1,2,a\n", &ImportOptions::default()).is_err());
+}
+
+#[test]
+fn a_malformed_row_is_never_a_reason_to_skip_lines() {
+    // Rows after a normal header: the bad row is the error, nothing before it is skipped.
+    let e = parse_err("t,u,y\n0,0,0\nabc\n0.002,1,1\n0.003,1,1\n0.004,1,1\n");
+    assert_eq!(e.to_string(), "data.csv:3: 1 fields, but the header has 3");
+    let e = parse_err("note\n0,0,0\nabc\n0.002,1,1\n0.003,1,1\n0.004,1,1\n");
+    assert!(e.to_string().starts_with("data.csv:1:"), "{e}");
+}
+
+#[test]
+fn a_unix_time_axis_gives_the_interval_as_written() {
+    let text: String = std::iter::once("timestamp,u,y\n".to_string())
+        .chain((0..2000).map(|k| format!("{:.3},{},{}\n", 1_764_720_000.0 + k as f64 * 1e-3, k % 7, k % 5)))
+        .collect();
+    let r = Record::parse(&text, "x").unwrap();
+    assert_eq!(r.ts, 0.001);
+    // 1024 Hz written to the microsecond keeps its digits.
+    let text: String = std::iter::once("t,u,y\n".to_string())
+        .chain((0..2048).map(|k| format!("{:.6},{},{}\n", k as f64 / 1024.0, k % 7, k % 5)))
+        .collect();
+    let r = Record::parse(&text, "x").unwrap();
+    assert!((r.ts - 1.0 / 1024.0).abs() < 1e-9, "{}", r.ts);
+}
