@@ -114,9 +114,11 @@ pub fn import_json(i: &Imported) -> serde_json::Value {
     serde_json::json!({
         "separator": i.info.separator.name(),
         "decimal_comma": i.info.decimal_comma,
+        "cut_short_line": i.info.cut_short,
         "preamble": i.info.preamble.map(|p| serde_json::json!({ "lines": p.lines, "table_line": p.table_line })),
         "header": i.info.header,
         "columns": columns,
+        "t_unit": i.info.t_unit.name(),
         "u_unit": i.info.u_unit.name(),
         "y_unit": i.info.y_unit.name(),
         "sample_rate_hz": match i.info.time { TimeSource::SampleRate(hz) => Some(hz), TimeSource::Column(_) => None },

@@ -1,7 +1,7 @@
 //! The flags every command that reads a record takes, and the one way to read it
 //! ([`boucwen_lab::record::import`]).
 
-use boucwen_lab::record::{self, ColumnMap, ImportOptions, Imported, LengthUnit, VoltUnit};
+use boucwen_lab::record::{self, ColumnMap, ImportOptions, Imported, LengthUnit, TimeUnit, VoltUnit};
 use std::path::Path;
 
 /// How to read a record that does not say everything itself.
@@ -14,6 +14,10 @@ pub struct RecordArgs {
     /// The sample rate (Hz) of a record without a time column.
     #[arg(long, value_name = "HZ")]
     sample_rate: Option<f64>,
+    /// The unit of the time column: s, ms or us (default: the header's, else s; whole-number
+    /// times with no unit stated are refused).
+    #[arg(long, value_name = "UNIT")]
+    t_unit: Option<TimeUnit>,
     /// The unit of the input column: V, mV or kV (default: the header's, else V).
     #[arg(long, value_name = "UNIT")]
     u_unit: Option<VoltUnit>,
@@ -42,6 +46,7 @@ impl RecordArgs {
         let opts = ImportOptions {
             columns: self.columns.clone(),
             sample_rate_hz: self.sample_rate,
+            t_unit: self.t_unit,
             u_unit: self.u_unit,
             y_unit: self.y_unit,
             keep_spikes: self.keep_spikes,

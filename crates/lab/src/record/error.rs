@@ -98,6 +98,14 @@ pub enum ErrorKind {
         /// The unit that gives a plausible span, if one does.
         likely: Option<&'static str>,
     },
+    /// The times are whole numbers at least 1 apart and nothing says their unit: seconds
+    /// would make a 1 kHz record sampled every second, so the unit must be given.
+    TimeUnitUnstated {
+        /// The time column (its name or position).
+        column: String,
+        /// The interval as read.
+        step: f64,
+    },
     /// A column named twice.
     DuplicateColumn(String),
     /// A required column is absent.
@@ -254,6 +262,11 @@ impl fmt::Display for ErrorKind {
                     }
                 }
             }
+            ErrorKind::TimeUnitUnstated { column, step } => write!(
+                f,
+                "column {column:?}: the times are whole numbers {step} apart and the header gives no unit; \
+                 if t is in ms, give --t-unit ms (us for µs; s if it really is sampled every {step} s)"
+            ),
             ErrorKind::DuplicateColumn(name) => write!(f, "column {name:?} appears twice"),
             ErrorKind::MissingColumn { role, found } => write!(
                 f,

@@ -83,7 +83,49 @@ impl LengthUnit {
     const ALL: [LengthUnit; 4] = [LengthUnit::M, LengthUnit::Mm, LengthUnit::Um, LengthUnit::Nm];
 }
 
-/// A flag's value that cannot be read (`--columns`, `--u-unit`, `--y-unit`).
+/// The unit of the time column `t` (`--t-unit`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum TimeUnit {
+    /// Seconds (the default).
+    S,
+    /// Milliseconds.
+    Ms,
+    /// Microseconds.
+    Us,
+}
+
+impl TimeUnit {
+    /// Seconds per unit.
+    pub fn seconds(self) -> f64 {
+        match self {
+            TimeUnit::S => 1.0,
+            TimeUnit::Ms => 1e-3,
+            TimeUnit::Us => 1e-6,
+        }
+    }
+    /// The name as the flag takes it.
+    pub fn name(self) -> &'static str {
+        match self {
+            TimeUnit::S => "s",
+            TimeUnit::Ms => "ms",
+            TimeUnit::Us => "us",
+        }
+    }
+}
+
+impl FromStr for TimeUnit {
+    type Err = OptionError;
+    fn from_str(s: &str) -> Result<Self, OptionError> {
+        match s.trim().to_lowercase().as_str() {
+            "s" => Ok(TimeUnit::S),
+            "ms" => Ok(TimeUnit::Ms),
+            "us" | "µs" | "μs" => Ok(TimeUnit::Us),
+            _ => Err(OptionError { flag: "--t-unit", value: excerpt(s), expected: "s, ms or us" }),
+        }
+    }
+}
+
+/// A flag's value that cannot be read (`--columns`, `--t-unit`, `--u-unit`, `--y-unit`).
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct OptionError {
     /// The flag.
@@ -221,6 +263,9 @@ pub struct ImportOptions {
     pub columns: Option<ColumnMap>,
     /// The sample rate (Hz) of a record without a time column.
     pub sample_rate_hz: Option<f64>,
+    /// The unit of `t` (`None`: the header's, else s; whole-number times with no unit
+    /// stated are refused, see [`ErrorKind::TimeUnitUnstated`]).
+    pub t_unit: Option<TimeUnit>,
     /// The unit of `u` (`None`: the header's, else V).
     pub u_unit: Option<VoltUnit>,
     /// The unit of `y` and `d` (`None`: the header's, else µm).
@@ -273,10 +318,15 @@ pub struct ImportInfo {
     pub decimal_comma: bool,
     /// Lines before the table that belong to no table (an instrument's preamble), skipped.
     pub preamble: Option<Preamble>,
+    /// The last line, left out: the file stops inside it (fewer fields than the header, no
+    /// line end after it).
+    pub cut_short: Option<usize>,
     /// Whether the file had a header row.
     pub header: bool,
     /// Each signal read and the column it came from (its header name, or its position).
     pub columns: Vec<(&'static str, String)>,
+    /// The unit `t` was read in.
+    pub t_unit: TimeUnit,
     /// The unit `u` was read in.
     pub u_unit: VoltUnit,
     /// The unit `y` (and `d`) was read in.
@@ -337,6 +387,7 @@ impl ImportInfo {
             .iter()
             .map(|(role, from)| {
                 let unit = match *role {
+                    "t" if self.t_unit != TimeUnit::S => format!(" in {}", self.t_unit.name()),
                     "u" if self.u_unit != VoltUnit::V => format!(" in {}", self.u_unit.name()),
                     "y" | "d" if self.y_unit != LengthUnit::Um => format!(" in {}", self.y_unit.name()),
                     _ => String::new(),
@@ -357,8 +408,11 @@ impl ImportInfo {
                 if p.lines == 1 { "" } else { "s" }
             )
         });
+        let cut = self
+            .cut_short
+            .map_or(String::new(), |line| format!("; line {line} left out: the file stops inside it"));
         format!(
-            "{}-separated{}, {}{preamble}; {}{time}{spikes}",
+            "{}-separated{}, {}{preamble}; {}{time}{cut}{spikes}",
             self.separator.name(),
             if self.decimal_comma { " with decimal commas" } else { "" },
             if self.header { "with a header" } else { "no header" },
@@ -619,6 +673,20 @@ fn role_of(word: &str) -> Option<Col> {
     }
 }
 
+/// Whether a header name is a sample counter (`index`, `Sample No.`, `k`), which carries no
+/// signal.
+fn is_index(name: &str) -> bool {
+    let lower = name.trim().to_lowercase();
+    let words: Vec<&str> = lower.split([' ', '_', '-', '.']).filter(|w| !w.is_empty()).collect();
+    match words.as_slice() {
+        [w] => {
+            ["index", "idx", "i", "k", "n", "no", "nr", "sample", "samples", "point", "points"].contains(w)
+        }
+        [a, b] => ["sample", "point"].contains(a) && ["no", "nr", "number", "index", "#"].contains(b),
+        _ => false,
+    }
+}
+
 /// `"disp (mm)"` → `("disp", Some("mm"))`, `"time_s"` → `("time", Some("s"))`, `"voltage, mv"`
 /// → `("voltage", Some("mv"))`, `"y"` → `("y", None)`.
 fn split_unit(name: &str) -> (&str, Option<&str>) {
@@ -829,9 +897,12 @@ pub fn import_text(text: &str, source: &str, opts: &ImportOptions) -> Result<Imp
             let names = names.as_deref().unwrap_or_default();
             let empty_throughout =
                 |i: usize| lines.clone().all(|(_, l)| fields(l, sep).get(i).is_none_or(|f| f.is_empty()));
-            if let Some(i) =
-                (0..width).find(|&i| !names[i].is_empty() && !slot.contains(&Some(i)) && !empty_throughout(i))
-            {
+            if let Some(i) = (0..width).find(|&i| {
+                !names[i].is_empty()
+                    && !slot.contains(&Some(i))
+                    && !is_index(&names[i])
+                    && !empty_throughout(i)
+            }) {
                 let kind = ErrorKind::UnknownColumn { name: excerpt(&names[i]), found: found() };
                 return Err(err(first_line, kind));
             }
@@ -853,7 +924,12 @@ pub fn import_text(text: &str, source: &str, opts: &ImportOptions) -> Result<Imp
     }
     let u_scale = opts.u_unit.map(VoltUnit::volts).or(scale_from_header[1]).unwrap_or(1.0);
     let y_scale = opts.y_unit.map(LengthUnit::micrometres).or(scale_from_header[2]).unwrap_or(1.0);
-    let t_scale = scale_from_header[0].unwrap_or(1.0);
+    let t_stated = opts.t_unit.map(TimeUnit::seconds).or(scale_from_header[0]);
+    let t_scale = t_stated.unwrap_or(1.0);
+    let time_unit = [TimeUnit::S, TimeUnit::Ms, TimeUnit::Us]
+        .into_iter()
+        .find(|u| u.seconds() == t_scale)
+        .unwrap_or(TimeUnit::S);
     let u_unit = [VoltUnit::V, VoltUnit::MilliV, VoltUnit::KiloV]
         .into_iter()
         .find(|u| u.volts() == u_scale)
@@ -884,12 +960,20 @@ pub fn import_text(text: &str, source: &str, opts: &ImportOptions) -> Result<Imp
     let mut u = Vec::with_capacity(rows_hint);
     let mut y = Vec::with_capacity(rows_hint);
     let mut d = Vec::with_capacity(if has_d { rows_hint } else { 0 });
+    // The last line, if the file does not end with a line end.
+    let unended = (!text.ends_with(['\n', '\r'])).then(|| all.last().map(|l| l.0)).flatten();
+    let mut cut_short = None;
     for (line_no, line) in lines {
         let f = fields(line, sep);
         // A trailing separator on data rows only is tolerated.
         let n_fields =
             if f.len() > width && f[width..].iter().all(|x| x.is_empty()) { width } else { f.len() };
         if n_fields != width {
+            if n_fields < width && Some(line_no) == unended {
+                // The file stops inside its last row (a logger stopped mid-write).
+                cut_short = Some(line_no);
+                break;
+            }
             return Err(err(line_no, ErrorKind::FieldCount { expected: width, found: f.len() }));
         }
         for &(i, col, scale) in &wanted {
@@ -953,12 +1037,15 @@ pub fn import_text(text: &str, source: &str, opts: &ImportOptions) -> Result<Imp
             let spread =
                 0.5 * (t_unit[0] + t_unit[n - 1]) + 4.0 * f64::EPSILON * (t[0].abs() + t[n - 1].abs());
             let ts = plainest((t[n - 1] - t[0]) / (n - 1) as f64, spread / (n - 1) as f64);
+            let name = names.as_ref().map_or_else(|| (i + 1).to_string(), |n| excerpt(&n[i]));
+            if t_stated.is_none() && ts >= 1.0 && t_unit.iter().all(|&r| r >= 1.0) {
+                return Err(whole(ErrorKind::TimeUnitUnstated { column: name, step: ts }));
+            }
             if let Some(hz) = opts.sample_rate_hz {
                 if (hz * ts - 1.0).abs() > UNIFORM_TOLERANCE {
                     return Err(whole(ErrorKind::RateMismatch { from_time_hz: 1.0 / ts, given_hz: hz }));
                 }
             }
-            let name = names.as_ref().map_or_else(|| (i + 1).to_string(), |n| excerpt(&n[i]));
             (t[0], ts, TimeSource::Column(name))
         }
         None => {
@@ -1006,8 +1093,10 @@ pub fn import_text(text: &str, source: &str, opts: &ImportOptions) -> Result<Imp
             separator: sep,
             decimal_comma,
             preamble,
+            cut_short,
             header,
             columns,
+            t_unit: time_unit,
             u_unit,
             y_unit,
             time,

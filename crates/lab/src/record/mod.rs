@@ -34,8 +34,12 @@
 //!   `deflection`, `output`; `d`, `ref`, `reference`, `target`, `setpoint`. A unit the header
 //!   states (`time_ms`, `Voltage (mV)`, `disp [mm]`) is applied unless a flag says otherwise.
 //!   Without `--columns` every named column must be one of these (a typo must not silently
-//!   drop a signal); unnamed columns (an empty first column, a pandas index), columns empty
-//!   on every row, and trailing names no row fills (an instrument's `Comment`) are ignored.
+//!   drop a signal); unnamed columns (an empty first column, a pandas index), sample
+//!   counters (`index`, `sample`, `Sample No.`, `n`, `k`), columns empty on every row, and
+//!   trailing names no row fills (an instrument's `Comment`) are ignored.
+//! - **Time unit**: the header's (`Time (ms)`), else `--t-unit s|ms|us`, else s; times
+//!   written as whole numbers at least 1 apart with no unit stated are refused with the flag
+//!   (a millisecond axis read as seconds would make every frequency 1000 times too low).
 //!   A file without a header needs `--columns`.
 //! - **`--columns t=NAME|N,u=NAME|N,y=NAME|N[,d=NAME|N]`** ([`ColumnMap`]): names
 //!   (case-insensitive) or positions counting from 1; roles left out are found by name;
@@ -52,7 +56,9 @@
 //! - **Spikes**: isolated samples of `y` far from both their neighbours' cubic and their
 //!   median (a sensor's dropouts) are replaced and reported ([`spikes`],
 //!   [`ImportInfo::spikes`]); [`ImportOptions::keep_spikes`] (`--keep-spikes`) keeps them.
-//! - **Rows**: as many fields as the header (or the first row); each value one that Rust's `f64` parser
+//! - **Rows**: as many fields as the header (or the first row), except a last row the file
+//!   stops inside (fewer fields, no line end after it: a logger stopped mid-write), which is
+//!   left out and said ([`ImportInfo::cut_short`]); each value one that Rust's `f64` parser
 //!   accepts (`1`, `-0.5`, `1e-3`, `+2.`), or with a decimal comma. `NaN` and `inf` are rejected.
 //! - **Text**: UTF-8, with or without a byte-order mark; LF or CRLF line ends.
 //! - **Errors** are one line naming the file and the line (counting every line from 1, the
@@ -105,7 +111,7 @@ mod write;
 pub use error::{At, EXCERPT_CHARS, ErrorKind, RecordError, excerpt};
 pub use import::{
     ColumnMap, ColumnRef, ImportInfo, ImportOptions, Imported, LengthUnit, MAX_SPAN_UM, MIN_SPAN_UM,
-    OptionError, Preamble, Separator, SpikeNote, TimeSource, VoltUnit, import, import_text,
+    OptionError, Preamble, Separator, SpikeNote, TimeSource, TimeUnit, VoltUnit, import, import_text,
 };
 pub use replay::{REPLAY_TOLERANCE_V, Replay, ReplayError};
 pub use write::{write_atomic, write_columns};

@@ -212,7 +212,7 @@ fn too_few_samples() {
 
 #[test]
 fn sample_interval_limits() {
-    let e = parse_err("t,u,y\n0,0,0\n20,0,0\n");
+    let e = parse_err("t,u,y\n0.0,0,0\n20.0,0,0\n");
     assert_eq!(e.to_string(), "data.csv: sample interval 2e1 s is outside 1e-6 s to 10 s");
     let e = parse_err("t,u,y\n0,0,0\n1e-7,0,0\n");
     assert!(matches!(e.kind, ErrorKind::SampleInterval(_)));
@@ -361,7 +361,7 @@ fn other_names_order_separators_and_units_from_the_header() {
     assert_eq!(i.info.y_unit, LengthUnit::Mm);
     assert_eq!(
         i.info.describe(),
-        r#"tab-separated, with a header; t = "Time (ms)", u = "Voltage", y = "Disp [mm]" in mm"#
+        r#"tab-separated, with a header; t = "Time (ms)" in ms, u = "Voltage", y = "Disp [mm]" in mm"#
     );
     // Whitespace-separated with aligned columns; semicolons; a trailing comma on rows.
     let r = Record::parse("  time    volt     disp\n  0.000   0.1      2.0\n  0.001  -0.1      2.5\n", "x")
@@ -528,7 +528,7 @@ fn decimal_commas_under_semicolons_tabs_and_spaces() {
         i.info.describe()
     );
     // The first rows may be integers: the mark comes from the first number with a fraction.
-    let i = import_with("t\tu\ty\n0\t0\t0\n1\t0\t0\n2\t0,5\t1,25\n", &ImportOptions::default()).unwrap();
+    let i = import_with("t [ms]\tu\ty\n0\t0\t0\n1\t0\t0\n2\t0,5\t1,25\n", &ImportOptions::default()).unwrap();
     assert_eq!((i.info.separator, i.info.decimal_comma), (Separator::Tab, true));
     assert_eq!(i.record.y, [0.0, 0.0, 1.25]);
     // Between spaces, with no header.
@@ -606,4 +606,49 @@ fn a_unix_time_axis_gives_the_interval_as_written() {
         .collect();
     let r = Record::parse(&text, "x").unwrap();
     assert!((r.ts - 1.0 / 1024.0).abs() < 1e-9, "{}", r.ts);
+}
+
+#[test]
+fn whole_number_times_need_their_unit_and_counters_are_no_signal() {
+    // Milliseconds without a unit would read as a record sampled every second.
+    let text: String = std::iter::once("Sample No.,time,u,y\n".to_string())
+        .chain((0..500).map(|k| format!("{k},{k},{},{}\n", k % 7, k % 5)))
+        .collect();
+    let e = import_with(&text, &ImportOptions::default()).unwrap_err();
+    assert_eq!(
+        e.to_string(),
+        "bench.txt: column \"time\": the times are whole numbers 1 apart and the header gives no unit; \
+         if t is in ms, give --t-unit ms (us for µs; s if it really is sampled every 1 s)"
+    );
+    let ms = ImportOptions { t_unit: Some(TimeUnit::Ms), ..ImportOptions::default() };
+    let i = import_with(&text, &ms).unwrap();
+    assert_eq!((i.record.ts, i.info.t_unit), (0.001, TimeUnit::Ms));
+    assert!(i.info.describe().contains(r#"t = "time" in ms"#), "{}", i.info.describe());
+    let s = ImportOptions { t_unit: Some(TimeUnit::S), ..ImportOptions::default() };
+    assert_eq!(import_with(&text, &s).unwrap().record.ts, 1.0);
+    // Seconds with decimals, or a unit in the header, need nothing.
+    assert_eq!(import_with("t,u,y\n0.5,0,1\n1.0,1,2\n", &ImportOptions::default()).unwrap().record.ts, 0.5);
+    assert_eq!(
+        import_with("time_ms,u,y\n0,0,1\n2,1,2\n", &ImportOptions::default()).unwrap().record.ts,
+        0.002
+    );
+    assert_eq!("µs".parse::<TimeUnit>(), Ok(TimeUnit::Us));
+    assert!("h".parse::<TimeUnit>().is_err());
+}
+
+#[test]
+fn a_file_that_stops_inside_its_last_row_loses_that_row_and_says_so() {
+    let i = import_with("t,u,y\n0,0,1\n0.001,1,2\n0.002,1", &ImportOptions::default()).unwrap();
+    assert_eq!((i.record.len(), i.info.cut_short), (2, Some(4)));
+    assert!(
+        i.info.describe().ends_with("; line 4 left out: the file stops inside it"),
+        "{}",
+        i.info.describe()
+    );
+    // With its line end the row is ragged, not cut: an error as any other.
+    let e = import_with("t,u,y\n0,0,1\n0.001,1,2\n0.002,1\n", &ImportOptions::default()).unwrap_err();
+    assert_eq!(e.to_string(), "bench.txt:4: 2 fields, but the header has 3");
+    // Only the last line.
+    let e = import_with("t,u,y\n0,0,1\n0.001,1\n0.002,1,2", &ImportOptions::default()).unwrap_err();
+    assert_eq!(e.to_string(), "bench.txt:3: 2 fields, but the header has 3");
 }
