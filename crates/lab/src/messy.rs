@@ -14,6 +14,8 @@
 //! | [`Mess::Whitespace`] | comment lines, columns aligned with spaces, output in nm | `--y-unit nm` |
 //! | [`Mess::DriveHarmonics`] | the drive carries its own 2nd and 3rd harmonics (0.5–3 % each) | nothing |
 //! | [`Mess::SecondInput`] | the actuator is also driven by a second sine (1–1.5 times the drive, at 0.3–0.45 of its frequency) that the record does not carry | nothing |
+//! | [`Mess::Spreadsheet`] | a spreadsheet's export: semicolons, decimal commas, quoted names with their units after a comma (`"Time, ms"`, `"Position, µm"`), times in whole milliseconds, a sample counter first | nothing |
+//! | [`Mess::Instrument`] | an instrument's (LabVIEW-style) export: a preamble of 20 lines, tabs, a `Comment` column no row fills, and the file stopping inside its last row | nothing |
 //! | [`Mess::Dropouts`] | 5 to 20 samples of `y` (a quarter of them in pairs) off by 0.3 to 2 times the output's amplitude, as a laser sensor that loses its target reads | nothing |
 //!
 //! [`Mess::SecondInput`] is drawn on a clean actuator; its truth is that another input
@@ -48,11 +50,15 @@ pub enum Mess {
     SecondInput,
     /// A sensor that loses its target for a sample or two now and then.
     Dropouts,
+    /// A spreadsheet's export: semicolons, decimal commas, quoted names, whole milliseconds.
+    Spreadsheet,
+    /// An instrument's export: a preamble, a `Comment` column, a cut last row.
+    Instrument,
 }
 
 impl Mess {
     /// Every mess.
-    pub const ALL: [Mess; 9] = [
+    pub const ALL: [Mess; 11] = [
         Mess::LeadIn,
         Mess::FewPeriods,
         Mess::Renamed,
@@ -62,6 +68,8 @@ impl Mess {
         Mess::DriveHarmonics,
         Mess::SecondInput,
         Mess::Dropouts,
+        Mess::Spreadsheet,
+        Mess::Instrument,
     ];
 
     /// A short name: "lead-in", "few-periods", ….
@@ -76,6 +84,8 @@ impl Mess {
             Mess::DriveHarmonics => "drive-harmonics",
             Mess::SecondInput => "second-input",
             Mess::Dropouts => "dropouts",
+            Mess::Spreadsheet => "spreadsheet",
+            Mess::Instrument => "instrument",
         }
     }
 
@@ -228,6 +238,12 @@ impl Messy {
     }
 }
 
+/// The start of an instrument's (LabVIEW-style) file, before the channels' sample counts.
+const INSTRUMENT_PREAMBLE: &str = "LabVIEW Measurement\t\nWriter_Version\t2\nReader_Version\t2\nSeparator\tTab\n\
+    Decimal_Separator\t.\nMultiple_Headers\tNo\nX_Columns\tOne\nTime_Pref\tRelative\nOperator\tbench 3\n\
+    Date\t2026/11/30\nTime\t14:02:11.5\n***End_of_Header***\t\n\nChannels\t2\n\
+    Date\t2026/11/30\t2026/11/30\nTime\t14:02:11.5\t14:02:11.5\nX_Dimension\tTime\tTime\nX0\t0.0E+0\t0.0E+0\n";
+
 /// The record as the mess writes it, the options and the flags to read it.
 fn write(mess: Mess, r: &Record) -> (String, ImportOptions, Vec<String>) {
     let mut s = String::with_capacity(r.len() * 40);
@@ -266,6 +282,25 @@ fn write(mess: Mess, r: &Record) -> (String, ImportOptions, Vec<String>) {
             }
             opts.y_unit = Some(LengthUnit::Nm);
             flags = vec!["--y-unit".into(), "nm".into()];
+        }
+        Mess::Spreadsheet => {
+            s.push_str("\"Sample No.\";\"Time, ms\";\"Voltage, V\";\"Position, µm\"\n");
+            for k in 0..r.len() {
+                let ms = format!("{:.6}", t(k) * 1e3);
+                let ms = ms.trim_end_matches('0').trim_end_matches('.');
+                let row = format!("{};{ms};{};{}", k + 1, r.u[k], r.y[k]);
+                let _ = writeln!(s, "{}", row.replace('.', ","));
+            }
+        }
+        Mess::Instrument => {
+            s.push_str(INSTRUMENT_PREAMBLE);
+            let _ = writeln!(s, "Samples\t{}\t{}\nDelta_X\t{:.6}\t{:.6}", r.len(), r.len(), r.ts, r.ts);
+            s.push_str("***End_of_Header***\t\nX_Value\tVoltage\tDisplacement\tComment\n");
+            for k in 0..r.len() {
+                let _ = writeln!(s, "{:.6}\t{}\t{}", t(k), r.u[k], r.y[k]);
+            }
+            // The logger stopped inside the last row: its output and line end are missing.
+            s.truncate(s.trim_end().rfind('\t').unwrap_or(s.len()));
         }
         _ => {
             s.push_str("t,u,y\n");

@@ -68,7 +68,9 @@ fn a_slow_drive_with_few_periods_is_diagnosed_on_whole_periods() {
 
 #[test]
 fn other_names_no_header_metres_and_whitespace_read_with_the_flags() {
-    for mess in [Mess::Renamed, Mess::NoHeader, Mess::Metres, Mess::Whitespace] {
+    for mess in
+        [Mess::Renamed, Mess::NoHeader, Mess::Metres, Mess::Whitespace, Mess::Spreadsheet, Mess::Instrument]
+    {
         for (effect, seed) in [(Effect::OddHarmonic(3), 2), (Effect::Clean, 1)] {
             assert_right(mess, effect, seed);
         }
@@ -83,6 +85,29 @@ fn other_names_no_header_metres_and_whitespace_read_with_the_flags() {
     let m = Messy::generate(Mess::Whitespace, Effect::Clean, 1).unwrap();
     let e = import_text(&m.text, "w.csv", &ImportOptions::default()).unwrap_err().to_string();
     assert!(e.contains("more than 10 mm; if y is in nm, give --y-unit nm"), "{e}");
+}
+
+#[test]
+fn a_spreadsheet_s_and_an_instrument_s_exports_are_read_without_flags_and_said_how() {
+    let m = Messy::generate(Mess::Spreadsheet, Effect::Clean, 1).unwrap();
+    let i = import_text(&m.text, "s.csv", &m.opts).unwrap();
+    assert_eq!(
+        i.info.describe(),
+        "semicolon-separated with decimal commas, with a header; t = \"Time, ms\" in ms, u = \"Voltage, V\", \
+         y = \"Position, µm\""
+    );
+    assert_eq!(i.record.ts, m.case.scenario.sampling.ts_s);
+    let m = Messy::generate(Mess::Instrument, Effect::Clean, 1).unwrap();
+    let i = import_text(&m.text, "i.lvm", &m.opts).unwrap();
+    let last = m.text.lines().count();
+    assert_eq!(
+        i.info.describe(),
+        format!(
+            "tab-separated, with a header from line 22 (20 lines before it skipped: they belong to no table); \
+             t = \"X_Value\", u = \"Voltage\", y = \"Displacement\"; line {last} left out: the file stops inside it"
+        )
+    );
+    assert_eq!(i.record.len() + 22 + 1, last);
 }
 
 #[test]
