@@ -115,6 +115,7 @@ pub fn import_json(i: &Imported) -> serde_json::Value {
         "separator": i.info.separator.name(),
         "decimal_comma": i.info.decimal_comma,
         "cut_short_line": i.info.cut_short,
+        "missing": i.info.missing.map(|m| serde_json::json!({ "count": m.count, "first_s": m.first_s })),
         "preamble": i.info.preamble.map(|p| serde_json::json!({ "lines": p.lines, "table_line": p.table_line })),
         "header": i.info.header,
         "columns": columns,

@@ -321,6 +321,8 @@ pub struct ImportInfo {
     /// The last line, left out: the file stops inside it (fewer fields than the header, no
     /// line end after it).
     pub cut_short: Option<usize>,
+    /// Samples of `y` the file leaves missing (`NaN` or empty), filled.
+    pub missing: Option<MissingNote>,
     /// Whether the file had a header row.
     pub header: bool,
     /// Each signal read and the column it came from (its header name, or its position).
@@ -345,6 +347,64 @@ pub struct Preamble {
     pub lines: usize,
     /// The line (from 1) where the table starts: its header, or its first row.
     pub table_line: usize,
+}
+
+/// Samples of `y` missing from the file (`NaN` or an empty field: a sensor out of range for
+/// a sample or two), filled by the cubic through the two samples on each side of each run.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct MissingNote {
+    /// How many samples were filled.
+    pub count: usize,
+    /// The time of the first (s, the record's axis).
+    pub first_s: f64,
+}
+
+/// Fills the missing (NaN) samples of `y` at `at` (ascending) if they are a few isolated
+/// ones: runs of at most [`super::spikes::MAX_RUN`] samples, each with two present samples
+/// on both sides, at most [`super::spikes::MAX_SHARE`] of the samples in all. Each is the
+/// cubic through the two samples on each side of its run. `None` (and `y` unchanged) if
+/// they are not.
+fn fill_missing(y: &mut [f64], at: impl Iterator<Item = usize>) -> Option<usize> {
+    let at: Vec<usize> = at.collect();
+    let n = y.len();
+    if at.len() as f64 > super::spikes::MAX_SHARE * n as f64 {
+        return None;
+    }
+    // Runs of consecutive indices: (first, last).
+    let mut runs: Vec<(usize, usize)> = Vec::new();
+    for &k in &at {
+        match runs.last_mut() {
+            Some(r) if r.1 + 1 == k => r.1 = k,
+            _ => runs.push((k, k)),
+        }
+    }
+    let present = |k: usize| y.get(k).is_some_and(|v| v.is_finite());
+    let isolated = |&(a, b): &(usize, usize)| {
+        b - a < super::spikes::MAX_RUN
+            && a >= 2
+            && present(a - 2)
+            && present(a - 1)
+            && present(b + 1)
+            && present(b + 2)
+    };
+    if !runs.iter().all(isolated) {
+        return None;
+    }
+    for (a, b) in runs {
+        // Lagrange through (a−2, a−1, b+1, b+2).
+        let xs = [a - 2, a - 1, b + 1, b + 2].map(|k| k as f64);
+        let ys = [y[a - 2], y[a - 1], y[b + 1], y[b + 2]];
+        for (k, v) in y.iter_mut().enumerate().take(b + 1).skip(a) {
+            let x = k as f64;
+            *v = (0..4)
+                .map(|i| {
+                    let w: f64 = (0..4).filter(|&j| j != i).map(|j| (x - xs[j]) / (xs[i] - xs[j])).product();
+                    w * ys[i]
+                })
+                .sum();
+        }
+    }
+    Some(at.len())
 }
 
 /// Isolated spikes of `y` the importer repaired.
@@ -408,11 +468,21 @@ impl ImportInfo {
                 if p.lines == 1 { "" } else { "s" }
             )
         });
+        let missing = self.missing.map_or(String::new(), |m| {
+            let t = format!("{:.6}", m.first_s);
+            format!(
+                "; y: {} missing sample{} (NaN or empty, the first at {} s) filled by the cubic through {} neighbours",
+                m.count,
+                if m.count == 1 { "" } else { "s" },
+                t.trim_end_matches('0').trim_end_matches('.'),
+                if m.count == 1 { "its" } else { "their" }
+            )
+        });
         let cut = self
             .cut_short
             .map_or(String::new(), |line| format!("; line {line} left out: the file stops inside it"));
         format!(
-            "{}-separated{}, {}{preamble}; {}{time}{cut}{spikes}",
+            "{}-separated{}, {}{preamble}; {}{time}{cut}{missing}{spikes}",
             self.separator.name(),
             if self.decimal_comma { " with decimal commas" } else { "" },
             if self.header { "with a header" } else { "no header" },
@@ -963,6 +1033,7 @@ pub fn import_text(text: &str, source: &str, opts: &ImportOptions) -> Result<Imp
     // The last line, if the file does not end with a line end.
     let unended = (!text.ends_with(['\n', '\r'])).then(|| all.last().map(|l| l.0)).flatten();
     let mut cut_short = None;
+    let mut missing: Vec<(usize, usize, String)> = Vec::new();
     for (line_no, line) in lines {
         let f = fields(line, sep);
         // A trailing separator on data rows only is tolerated.
@@ -978,6 +1049,12 @@ pub fn import_text(text: &str, source: &str, opts: &ImportOptions) -> Result<Imp
         }
         for &(i, col, scale) in &wanted {
             let field = f[i];
+            if col == Col::Y && (field.is_empty() || field.eq_ignore_ascii_case("nan")) {
+                // A sensor's missing sample: filled below if it is one of a few.
+                missing.push((y.len(), line_no, excerpt(field)));
+                y.push(f64::NAN);
+                continue;
+            }
             let raw: f64 = number(field, decimal_comma).ok_or_else(|| {
                 err(line_no, ErrorKind::NotANumber { column: col.name().into(), text: excerpt(field) })
             })?;
@@ -1016,6 +1093,19 @@ pub fn import_text(text: &str, source: &str, opts: &ImportOptions) -> Result<Imp
     if n < MIN_SAMPLES {
         return Err(whole(ErrorKind::TooFewSamples { found: n, needed: MIN_SAMPLES }));
     }
+    let filled = if missing.is_empty() {
+        None
+    } else if let Some(count) = fill_missing(&mut y, missing.iter().map(|m| m.0)) {
+        Some(count)
+    } else {
+        let (_, line_no, text) = missing.swap_remove(0);
+        let kind = if text.is_empty() {
+            ErrorKind::NotANumber { column: "y".into(), text }
+        } else {
+            ErrorKind::NotFinite { column: "y".into(), text }
+        };
+        return Err(err(line_no, kind));
+    };
     let (t0, ts, time) = match time_col {
         Some(i) => {
             let mut steps: Vec<f64> = t.windows(2).map(|w| w[1] - w[0]).collect();
@@ -1081,6 +1171,7 @@ pub fn import_text(text: &str, source: &str, opts: &ImportOptions) -> Result<Imp
         })
         .collect();
 
+    let missing = filled.map(|count| MissingNote { count, first_s: t0 + missing[0].0 as f64 * ts });
     let spikes = if opts.keep_spikes { None } else { super::spikes::repair(&mut y) }.map(|s| SpikeNote {
         count: s.indices.len(),
         departure_um: [s.min_departure, s.max_departure],
@@ -1094,6 +1185,7 @@ pub fn import_text(text: &str, source: &str, opts: &ImportOptions) -> Result<Imp
             decimal_comma,
             preamble,
             cut_short,
+            missing,
             header,
             columns,
             t_unit: time_unit,

@@ -59,7 +59,11 @@
 //! - **Rows**: as many fields as the header (or the first row), except a last row the file
 //!   stops inside (fewer fields, no line end after it: a logger stopped mid-write), which is
 //!   left out and said ([`ImportInfo::cut_short`]); each value one that Rust's `f64` parser
-//!   accepts (`1`, `-0.5`, `1e-3`, `+2.`), or with a decimal comma. `NaN` and `inf` are rejected.
+//!   accepts (`1`, `-0.5`, `1e-3`, `+2.`), or with a decimal comma. `NaN` and `inf` are
+//!   rejected, except a few missing samples of `y` (`NaN` or empty: a sensor out of range for
+//!   a sample or two): runs of at most two, with two samples present on each side, at most
+//!   1 % of the samples, are filled by the cubic through those four and said
+//!   ([`ImportInfo::missing`]).
 //! - **Text**: UTF-8, with or without a byte-order mark; LF or CRLF line ends.
 //! - **Errors** are one line naming the file and the line (counting every line from 1, the
 //!   header and comments included), and the column where one is at fault:
@@ -111,7 +115,8 @@ mod write;
 pub use error::{At, EXCERPT_CHARS, ErrorKind, RecordError, excerpt};
 pub use import::{
     ColumnMap, ColumnRef, ImportInfo, ImportOptions, Imported, LengthUnit, MAX_SPAN_UM, MIN_SPAN_UM,
-    OptionError, Preamble, Separator, SpikeNote, TimeSource, TimeUnit, VoltUnit, import, import_text,
+    MissingNote, OptionError, Preamble, Separator, SpikeNote, TimeSource, TimeUnit, VoltUnit, import,
+    import_text,
 };
 pub use replay::{REPLAY_TOLERANCE_V, Replay, ReplayError};
 pub use write::{write_atomic, write_columns};

@@ -652,3 +652,53 @@ fn a_file_that_stops_inside_its_last_row_loses_that_row_and_says_so() {
     let e = import_with("t,u,y\n0,0,1\n0.001,1\n0.002,1,2", &ImportOptions::default()).unwrap_err();
     assert_eq!(e.to_string(), "bench.txt:3: 2 fields, but the header has 3");
 }
+
+#[test]
+fn a_few_missing_samples_of_the_output_are_filled_and_said() {
+    // A smooth output (a cubic in k) with a sensor's out-of-range samples: one NaN, one empty
+    // field, and a run of two.
+    let y = |k: usize| {
+        let x = k as f64 * 0.01;
+        1.0 + x - 0.5 * x * x + 0.1 * x * x * x
+    };
+    let text = |gaps: &[usize], how: &str| -> String {
+        std::iter::once("t,u,y\n".to_string())
+            .chain((0..400).map(|k| {
+                let v = if gaps.contains(&k) { how.to_string() } else { y(k).to_string() };
+                format!("{},{},{v}\n", k as f64 * 1e-3, (k % 7) as f64)
+            }))
+            .collect()
+    };
+    for (gaps, how) in [(&[10usize, 200, 201][..], "NaN"), (&[50, 300][..], "")] {
+        let i = import_with(&text(gaps, how), &ImportOptions::default()).unwrap();
+        for &k in gaps {
+            assert!((i.record.y[k] - y(k)).abs() < 1e-12, "{k}: {} against {}", i.record.y[k], y(k));
+        }
+        let m = i.info.missing.unwrap();
+        assert_eq!((m.count, m.first_s), (gaps.len(), gaps[0] as f64 * 1e-3));
+        assert!(
+            i.info
+                .describe()
+                .contains(&format!("; y: {} missing samples (NaN or empty, the first at", gaps.len()))
+        );
+    }
+    // A run of three, one at the edge, or more than 1 % of the samples: an error at the first.
+    for (gaps, line) in [
+        (&[100usize, 101, 102][..], 102),
+        (&[1][..], 3),
+        (&(100..105).step_by(1).collect::<Vec<_>>()[..], 102),
+    ] {
+        let e = import_with(&text(gaps, "NaN"), &ImportOptions::default()).unwrap_err();
+        assert_eq!(e.to_string(), format!("bench.txt:{line}: column \"y\": \"NaN\" is not finite"));
+    }
+    let many: Vec<usize> = (10..400).step_by(50).collect();
+    assert!(
+        import_with(&text(&many, ""), &ImportOptions::default())
+            .unwrap_err()
+            .to_string()
+            .contains("empty field")
+    );
+    // The drive is never filled.
+    let e = import_with("t,u,y\n0,NaN,1\n0.001,1,2\n", &ImportOptions::default()).unwrap_err();
+    assert_eq!(e.to_string(), "bench.txt:2: column \"u\": \"NaN\" is not finite");
+}
