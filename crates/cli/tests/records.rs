@@ -203,3 +203,31 @@ fn records_without_a_response_or_with_another_drive_get_one_sentence() {
     assert_one_line_error(&o, "long-field.csv", "is not a number");
     assert!(o.stderr.len() < 300, "{} bytes", o.stderr.len());
 }
+
+#[test]
+fn a_spreadsheet_s_and_an_instrument_s_exports_are_read_as_they_come() {
+    let (_, path) = write_messy(Mess::Spreadsheet, Effect::OddHarmonic(3), 2);
+    let p = path.to_str().unwrap();
+    let j = json(&boucwen(&["diagnose", p, "--json"]));
+    assert_eq!(
+        (j["import"]["separator"].as_str(), j["import"]["decimal_comma"].as_bool()),
+        (Some("semicolon"), Some(true))
+    );
+    assert_eq!(j["import"]["t_unit"], "ms");
+    assert_eq!(j["findings"][0]["kind"], "odd_harmonic");
+    let (_, path) = write_messy(Mess::Instrument, Effect::Clean, 1);
+    let p = path.to_str().unwrap();
+    let j = json(&boucwen(&["diagnose", p, "--json"]));
+    assert_eq!(j["import"]["preamble"]["lines"], 20);
+    assert!(j["import"]["cut_short_line"].as_u64().is_some());
+    assert_eq!(j["findings"].as_array().map(Vec::len), Some(0));
+    // Whole milliseconds under a header without a unit: refused, then read with the flag.
+    let m = messy::Messy::generate(Mess::Spreadsheet, Effect::Clean, 1).unwrap();
+    let text = m.text.replacen("\"Time, ms\"", "\"Time\"", 1);
+    let path = tmp("whole-ms.csv");
+    std::fs::write(&path, text).unwrap();
+    let p = path.to_str().unwrap();
+    assert_one_line_error(&boucwen(&["diagnose", p]), p, "give --t-unit ms");
+    let j = json(&boucwen(&["diagnose", p, "--t-unit", "ms", "--json"]));
+    assert_eq!(j["ts_s"].as_f64().or(j["import"]["ts_s"].as_f64()), Some(0.001));
+}
