@@ -247,9 +247,14 @@ impl<'a> Problem<'a> {
         let mut chol = xtx.clone().cholesky()?;
         let mut theta = chol.solve(&xty);
         let mut clamped = false;
-        if !self.linear && theta[1] < 0.0 {
-            // The loop's amplitude A is physically ≥ 0: the constrained optimum then lies on
-            // A = 0 (one bound, so this is the exact non-negative least-squares solution).
+        // The output's sign: A1's. A sensor may count the actuator's stroke either way, and
+        // the model is odd in the output (y → −y is A1, A, A0, γ → −A1, −A, −A0, −γ, with
+        // the loop's shape `A0/A`, `γ' = sgn(A)·γ`, `β` unchanged).
+        let sign = if theta[0] < 0.0 { -1.0 } else { 1.0 };
+        if !self.linear && sign * theta[1] < 0.0 {
+            // The loop's amplitude A is physically of A1's sign (the loop lowers the gain):
+            // the constrained optimum then lies on A = 0 (one bound, so this is the exact
+            // non-negative least-squares solution).
             let mut reduced = xtx.clone();
             let mut rhs = xty.clone();
             for j in 0..ncol {
@@ -268,11 +273,14 @@ impl<'a> Problem<'a> {
         let amp = if self.linear { 0.0 } else { theta[1] };
         if self.require_invertible {
             // Over the whole range h can reach, not only the fitted trajectory: the inverse
-            // drives the model along other paths. A negative A is a non-physical loop.
-            let bw = BoucWenParams { a1: theta[0], a: amp, a0: r0 * amp, gamma: g, beta: b };
-            let ok = theta[0] > 0.0
-                && amp >= 0.0
-                && operating_slope(&bw, amp * h_lo, amp * h_hi).is_some_and(|m| m >= MIN_SLOPE * theta[0]);
+            // drives the model along other paths. An A of the other sign than A1 is a
+            // non-physical loop. Checked on the model of the output counted upwards (the
+            // inverse is odd in the output too).
+            let (a1, a) = (sign * theta[0], sign * amp);
+            let bw = BoucWenParams { a1, a, a0: r0 * a, gamma: g, beta: b };
+            let ok = a1 > 0.0
+                && a >= 0.0
+                && operating_slope(&bw, a * h_lo, a * h_hi).is_some_and(|m| m >= MIN_SLOPE * a1);
             if !ok {
                 return None;
             }
