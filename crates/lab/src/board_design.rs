@@ -755,7 +755,9 @@ pub fn design_from_records(records: &[Record], opts: &DesignOptions) -> Result<D
     let (alpha, alpha_source) = match opts.amplitude_um {
         Some(a) if a.is_finite() && a > 0.0 => (a, "requested"),
         Some(a) => return Err(BoardDesignError::Option(format!("amplitude {a} µm: must be above 0"))),
-        None => (experiment::eq25_amplitude(u, y), "eq25"),
+        // A sensor counting the stroke downwards gives a negative α: the reference is a sine
+        // of its size all the same (the inverse is odd in the output).
+        None => (experiment::eq25_amplitude(u, y).abs(), "eq25"),
     };
     if alpha.is_nan() || alpha <= 0.0 {
         return Err(BoardDesignError::Record(
@@ -872,9 +874,8 @@ pub fn design_from_records(records: &[Record], opts: &DesignOptions) -> Result<D
         h_lo = h_lo.min(h);
         h_hi = h_hi.max(h);
     }
-    let slope = fit::operating_slope(bw, h_lo, h_hi).unwrap_or(f64::NAN);
-    let slope_rel = slope / bw.a1;
-    if !(bw.a1 > 0.0 && slope_rel >= fit::MIN_SLOPE) {
+    let slope_rel = fit::slope_rel(bw, h_lo, h_hi).unwrap_or(f64::NAN);
+    if !(slope_rel >= fit::MIN_SLOPE) {
         return Err(BoardDesignError::NotInvertible(format!(
             "over the drive {lo_u:.3} to {hi_u:.3} V that tracking {alpha:.3} µm needs, the slope of A1·u − h falls to {slope_rel:.3}·A1 (at least {} needed; A1 = {:.4} µm/V): ask for a smaller --amplitude",
             fit::MIN_SLOPE,

@@ -192,3 +192,31 @@ fn board_numbers_survive_the_json_bit_for_bit() {
         assert_eq!(back.to_bits(), v.to_bits(), "{v:e}");
     }
 }
+
+#[test]
+fn a_sensor_counting_the_stroke_downwards_gives_the_mirrored_design() {
+    // The same actuator, its output recorded with the other sign (a laser measuring its
+    // distance to the actuator): the model is the mirror (A1, A, A0, γ negated), invertible
+    // all the same, and the reference is a sine of the same size.
+    let rec = on_chip_record(1.0, 6.0);
+    let down =
+        Record::new("down.csv", rec.t0, rec.ts, rec.u.clone(), rec.y.iter().map(|y| -y).collect(), None)
+            .unwrap();
+    let opts = DesignOptions { amplitude_um: None, ..DesignOptions::default() };
+    let (up, down) =
+        (design_from_records(&[rec], &opts).unwrap(), design_from_records(&[down], &opts).unwrap());
+    let [a1, a, a0, gamma, beta] = up.board.bouc_wen;
+    let mirrored = [-a1, -a, -a0, -gamma, beta];
+    for (x, y) in down.board.bouc_wen.iter().zip(mirrored) {
+        assert!(
+            (x - y).abs() <= 1e-6 * (1.0 + y.abs()),
+            "{:?} against the mirror of {:?}",
+            down.board.bouc_wen,
+            up.board.bouc_wen
+        );
+    }
+    assert_eq!(down.board.ar, up.board.ar);
+    assert_eq!(down.reference.amplitude_um, up.reference.amplitude_um);
+    assert!(down.reference.amplitude_um > 0.0);
+    assert_eq!(down.model.fit_pct, up.model.fit_pct);
+}

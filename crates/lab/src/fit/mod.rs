@@ -63,7 +63,7 @@ pub use lm::Stop;
 pub use model::{Branch, HostModel, LoopShape, MAX_BRANCHES, ModelSpec, delayed};
 pub use options::{
     Averaging, DelaySearch, LoopSearch, MAX_DELAY, MIN_SLOPE, OeOptions, Outer, Param, Samples,
-    StructureSearch, Tolerances, invertible_for, operating_slope,
+    StructureSearch, Tolerances, invertible_for, operating_slope, slope_rel, upwards,
 };
 pub use periodic::{MAX_DRIVE_APERIODIC, MAX_TEMPLATE_ORDER, MIN_PERIODS};
 pub use rls::fit_paper_rls;

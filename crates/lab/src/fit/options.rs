@@ -174,7 +174,28 @@ pub fn invertible_for(model: &HostModel, u: &[f64]) -> bool {
         lo = lo.min(h);
         hi = hi.max(h);
     }
-    bw.a1 > 0.0 && operating_slope(bw, lo, hi).is_some_and(|m| m >= MIN_SLOPE * bw.a1)
+    slope_rel(bw, lo, hi).is_some_and(|r| r >= MIN_SLOPE)
+}
+
+/// The model of the output counted upwards, and the output's sign: `bw` itself and `1` if
+/// `A1 ≥ 0`, else its mirror `−A1, −A, −A0, −γ` (the hysteresis `h → −h`) and `−1`. The
+/// models are odd in the output, and so is their inverse (a sensor may count the stroke
+/// either way).
+pub fn upwards(bw: &BoucWenParams<f64>) -> (BoucWenParams<f64>, f64) {
+    if bw.a1 < 0.0 {
+        let m = BoucWenParams { a1: -bw.a1, a: -bw.a, a0: -bw.a0, gamma: -bw.gamma, beta: bw.beta };
+        (m, -1.0)
+    } else {
+        (*bw, 1.0)
+    }
+}
+
+/// [`operating_slope`] relative to `A1` over `bw`'s hysteresis range `[lo, hi]`, for an
+/// output counted either way ([`upwards`]); `None` without a loop's range, or with `A1 = 0`.
+pub fn slope_rel(bw: &BoucWenParams<f64>, lo: f64, hi: f64) -> Option<f64> {
+    let (up, sign) = upwards(bw);
+    let (lo, hi) = if sign < 0.0 { (-hi, -lo) } else { (lo, hi) };
+    if up.a1 > 0.0 { operating_slope(&up, lo, hi).map(|m| m / up.a1) } else { None }
 }
 
 /// Smallest branch slope of `A1·u - h`, relative to `A1`, of an invertible model.
