@@ -17,7 +17,7 @@
 //!    model's free run on it, the same percentage.
 //! 4. **Harmonics found.** The odd harmonics of `f` (3rd to 9th, below 0.45 of the sample
 //!    rate) whose amplitude in the fitted part of the output is at least
-//!    [`crate::crate::sweep::MIN_HARMONIC_REL`] of the fundamental, the two largest, get
+//!    [`crate::sweep::MIN_HARMONIC_REL`] of the fundamental, the two largest, get
 //!    branches: the enhanced model fitted the same way is the *prediction model*, the best
 //!    account of the actuator the records give.
 //! 5. **α.** The amplitude asked for, else eq. (25) on the sine record.
@@ -875,7 +875,7 @@ pub fn design_from_records(records: &[Record], opts: &DesignOptions) -> Result<D
         h_hi = h_hi.max(h);
     }
     let slope_rel = fit::slope_rel(bw, h_lo, h_hi).unwrap_or(f64::NAN);
-    if !(slope_rel >= fit::MIN_SLOPE) {
+    if slope_rel.is_nan() || slope_rel < fit::MIN_SLOPE {
         return Err(BoardDesignError::NotInvertible(format!(
             "over the drive {lo_u:.3} to {hi_u:.3} V that tracking {alpha:.3} µm needs, the slope of A1·u − h falls to {slope_rel:.3}·A1 (at least {} needed; A1 = {:.4} µm/V): ask for a smaller --amplitude",
             fit::MIN_SLOPE,

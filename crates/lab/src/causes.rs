@@ -31,7 +31,7 @@
 //! fitted with the clamp: the clamp puts harmonics into the drive whose phases against the
 //! fundamental the actuator's delay sets (a sampled actuator answers about a sample late),
 //! and a single sine's structure absorbs the delay at the fundamental only (on saturation
-//! seed 1008 of [`crate::effects`] the fit at the true level leaves 0.21 µm with the delay
+//! seed 1008 of `crate::effects` (feature `fixtures`) the fit at the true level leaves 0.21 µm with the delay
 //! at 0 and 0.039 µm with it fitted, the noise). The delay freed with the clamp may also
 //! carry what is not a clamp, so the clamp is kept only if it fits [`CLAMP_BEYOND_DELAY`]
 //! better than the model with the delay alone, and with a delay below

@@ -65,7 +65,7 @@
 //!
 //! ## Thresholds
 //! The defaults ([`Thresholds::default`]) were set on records of the virtual bimorph with
-//! hidden effects ([`crate::hidden`]); what they give over a batch of records is measured by
+//! hidden effects (`crate::hidden`, feature `fixtures`); what they give over a batch of records is measured by
 //! `cargo bench --bench diagnose_batch`. Over 480 records (`-- --per-effect 60`), the
 //! largest term any candidate carried on the 120 clean records was 1.63 % of the output's
 //! fundamental RMS; the term of the hidden effect carried 3.29 % or more in 95 % of the

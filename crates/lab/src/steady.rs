@@ -8,7 +8,7 @@
 //! ## The drive ([`classify`])
 //! On the steady part of `u` (mean removed):
 //! - [`DriveKind::None`]: its standard deviation is below
-//!   [`MIN_EXCITATION_STD_V`](crate::record::MIN_EXCITATION_STD_V), or it has no oscillating
+//!   [`crate::record::MIN_EXCITATION_STD_V`], or it has no oscillating
 //!   component;
 //! - [`DriveKind::Sine`]: the dominant line `f` holds at least half of the variance, `f` and
 //!   its harmonics at least [`HARMONIC_SHARE`], and the harmonic distortion

@@ -3,7 +3,7 @@
 //! Both produce a [`HostModel`]: the extended model (AR order 2, eq. 9's form) plus
 //! harmonic branches of the drive (eqs. 6/7) and, for `diagnose`, an optional drift term
 //! (a polynomial in time added at the output). Models are simulated by the core's own
-//! [`boucwen_core::model::EnhancedParams::step`], so what is fitted here is exactly what the
+//! [`Model::step`](boucwen_core::model::Model::step) of [`boucwen_core::model::EnhancedParams`], so what is fitted here is exactly what the
 //! compensator and the firmware run.
 //!
 //! ## The paper's procedure ([`fit_paper_rls`])
@@ -22,7 +22,13 @@
 //! ŷ = G(z)·[A1·u - A·h₁ + Σ_n (α_s sin nθ + α_c cos nθ)] + drift(t),   G = 1/(1 - a1 z⁻¹ - a2 z⁻²)
 //! ```
 //! is linear in `(A1, A, α, drift)`: they are solved exactly by least squares for every
-//! outer point (variable projection). The outer parameters are ranked on a coarse grid
+//! outer point (variable projection), with `A` of `A1`'s sign (the loop lowers the gain;
+//! `A = 0` when the unconstrained solution has the other sign). The model is odd in the
+//! output (`y → −y` is `A1, A, A0, γ → −A1, −A, −A0, −γ`, the shape `A0/A, γ', β` and
+//! the AR part unchanged), so a sensor that counts the stroke downwards gets the mirrored
+//! fit; invertibility is checked on the model counted upwards ([`upwards`]). (Constraining
+//! `A ≥ 0`, as this fit first did, left such a record's baseline 4 times worse.) The outer
+//! parameters are ranked on a coarse grid
 //! (AR resonance, loop saturation, delay), and Levenberg–Marquardt refines the best few, in
 //! parallel, with the exact Jacobian from forward sensitivity equations computed in the same
 //! pass as the simulation ([`problem`](self) module docs) and stops by criteria ([`Stop`]).

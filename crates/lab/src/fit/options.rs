@@ -87,7 +87,7 @@ pub enum Averaging {
 }
 
 /// When Levenberg–Marquardt stops. The iteration limit is a safety net: a fit that hits it
-/// says so ([`Stop::IterationLimit`]).
+/// says so ([`Stop::IterationLimit`](super::Stop::IterationLimit)).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Tolerances {
     /// Stop when an accepted step lowers the cost by less than this fraction of it.
