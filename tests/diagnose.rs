@@ -112,3 +112,53 @@ fn the_default_actuator_at_23_hz_shows_its_odd_harmonic_oscillation() {
     assert_eq!(j["findings"][0]["order"], 3);
     assert_eq!(j["extended"]["model"], d.model.name());
 }
+
+#[test]
+fn a_stepped_sine_is_diagnosed_step_by_step() {
+    // The paper's actuator through 14, 23 and 40 Hz in one record (5 s each): its 5th
+    // harmonic at 14 Hz and its 3rd at 23 Hz, each in its own step.
+    let s = Scenario::default();
+    let ts = s.sampling.ts_s;
+    let u: Vec<f64> = [14.0, 23.0, 40.0]
+        .iter()
+        .flat_map(|&f| (0..5000).map(move |k| (std::f64::consts::TAU * f * k as f64 * ts).sin()))
+        .collect();
+    let y = Bimorph::new(&s).unwrap().run(&u).unwrap();
+    // As one sine it is not: the whole record does not repeat.
+    assert!(diagnose::diagnose(&u, &y, ts, &Thresholds::default()).is_err());
+    let steps = diagnose::diagnose_steps(&u, &y, ts, 0.0, &Thresholds::default()).expect("a stepped sine");
+    let freqs: Vec<f64> = steps.iter().map(|s| s.segment.freq_hz).collect();
+    assert_eq!(freqs.len(), 3, "{freqs:?}");
+    for (got, want) in freqs.iter().zip([14.0, 23.0, 40.0]) {
+        assert!((got - want).abs() < 1e-3, "{freqs:?}");
+    }
+    let sine = |i: usize| match &steps[i].outcome {
+        Ok(diagnose::Outcome::Sine(d)) => d.clone(),
+        other => panic!("step {i}: {other:?}"),
+    };
+    let (d14, d23) = (sine(0), sine(1));
+    assert_eq!(
+        (d14.findings[0].kind, d14.findings[0].order),
+        (Kind::OddHarmonic, Some(5)),
+        "{}",
+        d14.summary("14")
+    );
+    assert_eq!(
+        (d23.findings[0].kind, d23.findings[0].order),
+        (Kind::OddHarmonic, Some(3)),
+        "{}",
+        d23.summary("23")
+    );
+    // Each step's window lies in its own part of the record, after its own start-up.
+    for (i, st) in steps.iter().enumerate() {
+        let d = sine(i);
+        let [w0, w1] = d.window_s();
+        let (a, b) = (st.segment.start as f64 * ts, st.segment.end as f64 * ts);
+        assert!(w0 > a && w1 <= b + 1e-9, "step {i}: window {w0}–{w1} s outside {a}–{b} s");
+    }
+    // The step onto the drive measures the delay from rest only: the first step's.
+    assert!(d14.delay.is_some());
+    assert!(sine(1).delay.is_none() && sine(2).delay.is_none());
+    let sentence = diagnose::steps_sentence(&steps, ts, 0.0);
+    assert!(sentence.starts_with("the drive steps through 3 sines: 14.000 Hz 1.000 V (0 to "), "{sentence}");
+}

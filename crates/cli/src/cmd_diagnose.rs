@@ -41,6 +41,12 @@ fn one(a: &DiagnoseArgs, path: &Path, report_dir: Option<PathBuf>) -> Result<Str
     let r = &imported.record;
     r.validate_for_fit(diagnose::MIN_SAMPLES).map_err(|e| e.to_string())?;
     let given = a.record.window(r)?;
+    if given.is_none() {
+        let th = diagnose::Thresholds::default();
+        if let Some(steps) = diagnose::diagnose_steps(&r.u, &r.y, r.ts, r.t0, &th) {
+            return stepped(a, &imported, &name, &steps, report_dir);
+        }
+    }
     let rec = Realisation { u: &r.u, y: &r.y, t0: r.t0, given };
     let d = diagnose::diagnose_drive(&[rec], r.ts, &diagnose::Thresholds::default())
         .map_err(|e| format!("{name}: {e}"))?;
@@ -55,6 +61,104 @@ fn one(a: &DiagnoseArgs, path: &Path, report_dir: Option<PathBuf>) -> Result<Str
     } else {
         format!("read as {}\n{}", imported.info.describe(), d.summary(&name))
     })
+}
+
+/// A record that steps through several sines: each step's report (or JSON line, or one
+/// sentence), then what changes across the steps.
+fn stepped(
+    a: &DiagnoseArgs,
+    imported: &Imported,
+    name: &str,
+    steps: &[diagnose::SineStep],
+    report_dir: Option<PathBuf>,
+) -> Result<String, String> {
+    let r = &imported.record;
+    let t = |k: usize| r.t0 + k as f64 * r.ts;
+    if steps.iter().all(|s| s.outcome.is_err()) {
+        let first = steps[0].outcome.as_ref().err().map(ToString::to_string).unwrap_or_default();
+        return Err(format!(
+            "{name}: {}; none could be: the first ({:.3} Hz) because {first}",
+            diagnose::steps_sentence(steps, r.ts, r.t0),
+            steps[0].segment.freq_hz
+        ));
+    }
+    let mut out = String::new();
+    if !a.json {
+        out.push_str(&format!(
+            "read as {}
+{name}: {}
+",
+            imported.info.describe(),
+            diagnose::steps_sentence(steps, r.ts, r.t0)
+        ));
+    }
+    let mut across = vec![];
+    for (i, s) in steps.iter().enumerate() {
+        let (from, to) = (t(s.segment.start), t(s.segment.end));
+        let label = format!("{name} [step {} of {}: {:.3} Hz]", i + 1, steps.len(), s.segment.freq_hz);
+        let step_json = serde_json::json!({
+            "index": i + 1, "of": steps.len(), "freq_hz": s.segment.freq_hz,
+            "amplitude_v": s.segment.amplitude_v, "from_s": from, "to_s": to,
+        });
+        match &s.outcome {
+            Ok(d) => {
+                if let Some(dir) = &report_dir {
+                    let (u, y) = (&r.u[s.segment.start..s.segment.end], &r.y[s.segment.start..s.segment.end]);
+                    write_report(d, u, y, &label, &dir.join(format!("step-{}", i + 1)))?;
+                }
+                let findings: Vec<String> = d
+                    .findings()
+                    .iter()
+                    .filter(|f| f.kept)
+                    .map(|f| match f.order {
+                        Some(n) => format!("{} {n}", f.kind.as_str()),
+                        None => f.kind.as_str().to_string(),
+                    })
+                    .collect();
+                let j = d.json();
+                across.push(format!(
+                    "  {:8.3} Hz {:7.3} V: baseline {:.4} µm, extended {:.4} µm ({}), findings: {}",
+                    s.segment.freq_hz,
+                    s.segment.amplitude_v,
+                    j["baseline"]["rms_um"].as_f64().unwrap_or(f64::NAN),
+                    j["extended"]["rms_um"].as_f64().unwrap_or(f64::NAN),
+                    j["extended"]["model"].as_str().unwrap_or("?"),
+                    if findings.is_empty() { "none".to_string() } else { findings.join(", ") }
+                ));
+                if a.json {
+                    let mut j = j;
+                    j["file"] = serde_json::json!(name);
+                    j["step"] = step_json;
+                    j["import"] = import_json(imported);
+                    out.push_str(&format!("{j}\n"));
+                } else {
+                    out.push_str(&format!(
+                        "\n== step {} of {}: {from} to {to} s ==\n{}",
+                        i + 1,
+                        steps.len(),
+                        d.summary(&label)
+                    ));
+                }
+            }
+            Err(e) => {
+                across.push(format!("  {:8.3} Hz {:7.3} V: {e}", s.segment.freq_hz, s.segment.amplitude_v));
+                if a.json {
+                    let j = serde_json::json!({"file": name, "step": step_json, "error": format!("{label}: {e}")});
+                    out.push_str(&format!("{j}\n"));
+                } else {
+                    out.push_str(&format!(
+                        "\n== step {} of {}: {from} to {to} s ==\n{label}: {e}\n",
+                        i + 1,
+                        steps.len()
+                    ));
+                }
+            }
+        }
+    }
+    if !a.json {
+        out.push_str(&format!("\nacross the steps (held out):\n{}\n", across.join("\n")));
+    }
+    Ok(out)
 }
 
 fn write_report(d: &Outcome, u: &[f64], y: &[f64], name: &str, dir: &Path) -> Result<(), String> {

@@ -549,6 +549,67 @@ pub fn diagnose_drive(
     }
 }
 
+/// One steady sine of a record that steps through several, and its diagnosis.
+#[derive(Debug)]
+pub struct SineStep {
+    /// Where the sine is, its frequency and amplitude.
+    pub segment: steady::SineSegment,
+    /// Its diagnosis, or why there is none.
+    pub outcome: Result<Outcome, DiagnoseError>,
+}
+
+/// A record that steps through several sines (a stepped sine: the same actuator at a series
+/// of frequencies or amplitudes in one file, [`steady::sine_segments`]), each diagnosed on
+/// its own (its own steady window, start-up and model), on all cores; `None` if the record
+/// does not step through two sines or more.
+pub fn diagnose_steps(u: &[f64], y: &[f64], ts: f64, t0: f64, th: &Thresholds) -> Option<Vec<SineStep>> {
+    let n = u.len().min(y.len());
+    let segments = steady::sine_segments(&u[..n], ts);
+    if segments.len() < 2 {
+        return None;
+    }
+    Some(
+        segments
+            .par_iter()
+            .map(|&segment| {
+                let (a, b) = (segment.start, segment.end);
+                let (u, y, t0) = (&u[a..b], &y[a..b], t0 + a as f64 * ts);
+                let outcome = steady::steady_window(u, y, ts, None)
+                    .map_err(DiagnoseError::Window)
+                    .and_then(|(w, d)| plan_in(u, y, ts, t0, w, d))
+                    .and_then(|mut plan| {
+                        // After the first step the actuator was not at rest: no delay from it.
+                        plan.from_rest = a == 0;
+                        diagnose_planned(u, y, ts, &plan, th).map(|d| Outcome::Sine(Box::new(d)))
+                    });
+                SineStep { segment, outcome }
+            })
+            .collect(),
+    )
+}
+
+/// The sentence that introduces a stepped sine's diagnoses: "the drive steps through 4
+/// sines: 5.000 Hz 1.000 V (0 to 3.75 s), …; each is diagnosed on its own".
+pub fn steps_sentence(steps: &[SineStep], ts: f64, t0: f64) -> String {
+    let list: Vec<String> = steps
+        .iter()
+        .map(|s| {
+            format!(
+                "{:.3} Hz {:.3} V ({} to {} s)",
+                s.segment.freq_hz,
+                s.segment.amplitude_v,
+                fmt_s(t0 + s.segment.start as f64 * ts),
+                fmt_s(t0 + s.segment.end as f64 * ts)
+            )
+        })
+        .collect();
+    format!(
+        "the drive steps through {} sines: {}; each is diagnosed on its own",
+        steps.len(),
+        list.join(", ")
+    )
+}
+
 /// The input delay a record's step onto the drive shows.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct DelayEstimate {
@@ -1234,6 +1295,10 @@ pub struct Plan {
     pub opt: OeOptions,
     /// Time of the record's first sample (s).
     pub t0: f64,
+    /// Whether the actuator was at rest before the drive came on (a record's own start; not
+    /// a step of a stepped sine after the first), so that the step onto the drive measures
+    /// the delay.
+    pub from_rest: bool,
 }
 
 /// Plans the diagnosis of a record (see [`Plan`]): finds the steady window (or takes
@@ -1288,7 +1353,7 @@ pub fn plan_in(
     let start_rel = start - window.drive_on;
     let mut opt = OeOptions { lm_starts: TERM_STARTS, ..fit_options(split, ts) };
     opt.skip = start_rel.max(opt.skip.min(split.saturating_sub(FIT_MIN_SAMPLES)));
-    Ok(Plan { window, drive, split, periods: (p_fit, periods - p_fit), opt, t0 })
+    Ok(Plan { window, drive, split, periods: (p_fit, periods - p_fit), opt, t0, from_rest: true })
 }
 
 /// Fewest samples in the fit's criterion.
@@ -1691,7 +1756,8 @@ fn diagnose_from(
     }
     // The delay, from the step onto the drive: a record that holds the step (an idle part
     // before it, or a drive starting from 0 V) and a start-up after it.
-    let holds_step = plan.window.start > plan.window.drive_on
+    let holds_step = plan.from_rest
+        && plan.window.start > plan.window.drive_on
         && (plan.window.drive_on > 0 || u.first().is_some_and(|u0| u0.abs() <= STEP_FROM_REST * drive_amp));
     let mut delay = None;
     let mut delay_finding = None;

@@ -1171,6 +1171,101 @@ fn fmt_s(x: f64) -> String {
     s.trim_end_matches('0').trim_end_matches('.').to_string()
 }
 
+/// One steady sine of a record that steps through several ([`sine_segments`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SineSegment {
+    /// First sample.
+    pub start: usize,
+    /// One past the last sample.
+    pub end: usize,
+    /// The sine's frequency (Hz).
+    pub freq_hz: f64,
+    /// Its amplitude (V).
+    pub amplitude_v: f64,
+}
+
+/// Blocks of a record, per try of [`sine_segments`]: the record in this many.
+const SEGMENT_BLOCKS: [usize; 3] = [16, 32, 64];
+/// Blocks of one segment agree in frequency within this fraction, and in amplitude within
+/// [`LEVEL_TOLERANCE`].
+const SEGMENT_FREQ_TOLERANCE: f64 = 0.01;
+/// Fewest blocks of a segment.
+const MIN_SEGMENT_BLOCKS: usize = 2;
+/// Least share of the record the segments cover.
+const MIN_SEGMENTS_SHARE: f64 = 0.5;
+/// Fewest whole periods of a segment (the diagnosis needs four, fitted and held out, after
+/// the output settles).
+pub const MIN_SEGMENT_PERIODS: f64 = 6.0;
+
+/// The steady sines a record steps through (a stepped sine: the same actuator at a series
+/// of frequencies or amplitudes in one file), in order; empty unless there are at least
+/// two that differ in frequency or amplitude.
+///
+/// The record is cut into blocks (16, 32 or 64 of them, the cut that covers most of the
+/// record); each block's drive is classified on its own, and consecutive sine blocks of
+/// one frequency (within 1 %) and amplitude (within [`LEVEL_TOLERANCE`]) make a segment,
+/// kept if it spans two blocks or more and [`MIN_SEGMENT_PERIODS`] whole periods (a sine
+/// that changes from block to block, a chirp or a modulation, is no step). The segments
+/// must cover half the record. A block that straddles a step is not a clean sine, so a
+/// segment ends at most a block short of its step.
+pub fn sine_segments(u: &[f64], ts: f64) -> Vec<SineSegment> {
+    let mut best: Vec<SineSegment> = vec![];
+    let covered = |v: &[SineSegment]| v.iter().map(|s| s.end - s.start).sum::<usize>();
+    for count in SEGMENT_BLOCKS {
+        let w = u.len() / count;
+        if w < 16 {
+            continue;
+        }
+        let blocks: Vec<Option<(f64, f64)>> = u
+            .chunks_exact(w)
+            .map(|b| {
+                let d = classify(b, ts);
+                let amp = d.harmonics.first().map_or(0.0, |t| t.amp);
+                (d.kind == DriveKind::Sine && amp > 0.0).then_some((d.freq_hz, amp))
+            })
+            .collect();
+        let mut segs: Vec<SineSegment> = vec![];
+        let mut k = 0;
+        while k < blocks.len() {
+            let Some((f, a)) = blocks[k] else {
+                k += 1;
+                continue;
+            };
+            let mut e = k + 1;
+            while let Some(Some((f2, a2))) = blocks.get(e) {
+                if (f2 - f).abs() > SEGMENT_FREQ_TOLERANCE * f
+                    || (a2 - a).abs() > LEVEL_TOLERANCE * a.max(*a2)
+                {
+                    break;
+                }
+                e += 1;
+            }
+            let (start, end) = (k * w, e * w);
+            if e - k < MIN_SEGMENT_BLOCKS {
+                // A sine that changes from block to block (a chirp, a modulation) is no step.
+                k = e;
+                continue;
+            }
+            // The whole segment's sine, and its periods.
+            let d = classify(&u[start..end], ts);
+            let amp = d.harmonics.first().map_or(0.0, |t| t.amp);
+            if d.kind == DriveKind::Sine && (end - start) as f64 * ts * d.freq_hz >= MIN_SEGMENT_PERIODS {
+                segs.push(SineSegment { start, end, freq_hz: d.freq_hz, amplitude_v: amp });
+            }
+            k = e;
+        }
+        let distinct = segs.windows(2).any(|p| {
+            (p[0].freq_hz - p[1].freq_hz).abs() > SEGMENT_FREQ_TOLERANCE * p[0].freq_hz
+                || (p[0].amplitude_v - p[1].amplitude_v).abs() > LEVEL_TOLERANCE * p[0].amplitude_v
+        });
+        let most = covered(&segs) as f64 >= MIN_SEGMENTS_SHARE * u.len() as f64;
+        if segs.len() >= 2 && distinct && most && covered(&segs) > covered(&best) {
+            best = segs;
+        }
+    }
+    best
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -1372,5 +1467,38 @@ mod tests {
         assert_eq!((w.drive_on, w.start, w.end), (1000, 1000, 3000));
         assert_eq!(d.kind, DriveKind::Sine);
         assert!(w.given);
+    }
+
+    #[test]
+    fn a_stepped_sine_is_cut_into_its_steps_and_a_chirp_or_a_modulation_is_not() {
+        let ts = 1e-3;
+        let sine = |f: f64, a: f64, n: usize| (0..n).map(move |k| a * (TAU * f * k as f64 * ts).sin());
+        // Frequencies and amplitudes; the steps found within a block of their true edges.
+        let u: Vec<f64> =
+            sine(5.0, 1.0, 4000).chain(sine(12.0, 1.0, 4000)).chain(sine(12.0, 2.0, 4000)).collect();
+        let segs = sine_segments(&u, ts);
+        let got: Vec<(f64, f64)> = segs.iter().map(|s| (s.freq_hz, s.amplitude_v)).collect();
+        assert_eq!(segs.len(), 3, "{got:?}");
+        for (g, want) in got.iter().zip([(5.0, 1.0), (12.0, 1.0), (12.0, 2.0)]) {
+            assert!((g.0 - want.0).abs() < 1e-6 && (g.1 - want.1).abs() < 1e-3, "{got:?}");
+        }
+        let w = u.len() / 16;
+        for (s, (a, b)) in segs.iter().zip([(0, 4000), (4000, 8000), (8000, 12000)]) {
+            assert!(s.start >= a && s.start <= a + w && s.end <= b && s.end + w >= b, "{s:?}");
+        }
+        // One sine, a sine after idle, a chirp and an amplitude modulation: no steps.
+        let one: Vec<f64> = sine(23.0, 1.0, 10_000).collect();
+        let idle_then: Vec<f64> = std::iter::repeat_n(0.0, 2000).chain(sine(23.0, 1.0, 8000)).collect();
+        let chirp: Vec<f64> =
+            (0..10_000).map(|k| (TAU * (2.0 + 2.0 * k as f64 * ts) * k as f64 * ts).sin()).collect();
+        let am: Vec<f64> = (0..10_000)
+            .map(|k| {
+                let t = k as f64 * ts;
+                (1.0 + 0.5 * (TAU * 0.5 * t).sin()) * (TAU * 20.0 * t).sin()
+            })
+            .collect();
+        for (name, u) in [("one", one), ("idle then", idle_then), ("chirp", chirp), ("am", am)] {
+            assert!(sine_segments(&u, ts).is_empty(), "{name}: {:?}", sine_segments(&u, ts));
+        }
     }
 }
