@@ -2,8 +2,9 @@
 //! to the actuator reads the stroke downwards. The models are odd in the output (`y → −y` is
 //! `A1, A, A0, γ → −A1, −A, −A0, −γ` with the loop's shape unchanged, and the branches',
 //! offset's and drift's weights negated), so the diagnosis of `−y` must be the diagnosis of
-//! `y`: the same findings in the same order, the same held-out errors. Checked on a record of
-//! every kind of hidden effect and drive.
+//! `y`: the same findings in the same order, the same held-out errors (to 1 %: the
+//! refinements stop by tolerances). Checked on a record of every kind of hidden effect and
+//! drive. The fit finds the output's sign as `boucwen_lab::fit::fit_oe_on` says.
 
 use boucwen_lab::diagnose::{self, Outcome, Thresholds};
 use boucwen_lab::effects::{Nonlinearity, PeriodicCase, PeriodicDrive, SineCase, SineEffect};
@@ -41,14 +42,16 @@ fn assert_same_either_way(name: &str, records: &[Record]) {
     assert_eq!(f_up, f_down, "{name}: findings of y and of −y");
     for key in ["baseline", "extended"] {
         let (a, b) = (up[key]["rms_um"].as_f64(), down[key]["rms_um"].as_f64());
-        assert!(a.is_some(), "{name}: no {key} RMS: {up}");
-        if let (Some(a), Some(b)) = (a, b) {
-            assert!((a - b).abs() <= 0.01 * a.max(b) + 1e-6, "{name}: {key} {a} for y, {b} for −y");
-        } else {
-            assert_eq!(a, b, "{name}: {key}");
-        }
+        let (Some(a), Some(b)) = (a, b) else { panic!("{name}: no {key} RMS: {up} / {down}") };
+        assert!((a - b).abs() <= 0.01 * a.max(b) + 1e-6, "{name}: {key} {a} µm for y, {b} µm for −y");
     }
-    eprintln!("{name}: {f_up:?}, {} -> {} µm either way", up["baseline"]["rms_um"], up["extended"]["rms_um"]);
+    eprintln!(
+        "{name}: {f_up:?}; y {} -> {} µm, −y {} -> {} µm",
+        up["baseline"]["rms_um"],
+        up["extended"]["rms_um"],
+        down["baseline"]["rms_um"],
+        down["extended"]["rms_um"]
+    );
 }
 
 #[test]

@@ -136,6 +136,10 @@ pub struct OeOptions {
     /// on the fitted one; a free fit may reach a locally decreasing loop that reproduces a
     /// record as well.
     pub require_invertible: bool,
+    /// The output's sign, `1.0` for an output counted upwards (`A ≥ 0`), `-1.0` downwards
+    /// (`A ≤ 0`; [`upwards`]). `None`: the start models', else decided by
+    /// [`super::fit_oe_on`].
+    pub output_sign: Option<f64>,
 }
 
 impl Default for OeOptions {
@@ -150,6 +154,7 @@ impl Default for OeOptions {
             delay: DelaySearch::Fixed(0.0),
             hysteresis: LoopSearch::Grid,
             require_invertible: true,
+            output_sign: None,
         }
     }
 }

@@ -26,6 +26,10 @@ pub(crate) struct Problem<'a> {
     pub require_invertible: bool,
     /// No hysteresis column.
     pub linear: bool,
+    /// The output's sign: `A` has it, and so has `A1` for an invertible model. The model is
+    /// odd in the output (`y → −y` is `A1, A, A0, γ → −A1, −A, −A0, −γ` with the loop's
+    /// shape unchanged), so a sensor counting the stroke downwards is fitted with `−1`.
+    pub sign: f64,
     u: &'a [f64],
     ts: f64,
     spec: &'a ModelSpec,
@@ -96,6 +100,7 @@ impl<'a> Problem<'a> {
         Ok(Self {
             require_invertible: false,
             linear: false,
+            sign: 1.0,
             u,
             ts,
             spec,
@@ -247,13 +252,10 @@ impl<'a> Problem<'a> {
         let mut chol = xtx.clone().cholesky()?;
         let mut theta = chol.solve(&xty);
         let mut clamped = false;
-        // The output's sign: A1's. A sensor may count the actuator's stroke either way, and
-        // the model is odd in the output (y → −y is A1, A, A0, γ → −A1, −A, −A0, −γ, with
-        // the loop's shape `A0/A`, `γ' = sgn(A)·γ`, `β` unchanged).
-        let sign = if theta[0] < 0.0 { -1.0 } else { 1.0 };
+        let sign = self.sign;
         if !self.linear && sign * theta[1] < 0.0 {
-            // The loop's amplitude A is physically of A1's sign (the loop lowers the gain):
-            // the constrained optimum then lies on A = 0 (one bound, so this is the exact
+            // The loop's amplitude A has the output's sign (the loop lowers the gain): the
+            // constrained optimum then lies on A = 0 (one bound, so this is the exact
             // non-negative least-squares solution).
             let mut reduced = xtx.clone();
             let mut rhs = xty.clone();
