@@ -231,3 +231,45 @@ fn a_spreadsheet_s_and_an_instrument_s_exports_are_read_as_they_come() {
     let j = json(&boucwen(&["diagnose", p, "--t-unit", "ms", "--json"]));
     assert_eq!(j["ts_s"].as_f64().or(j["import"]["ts_s"].as_f64()), Some(0.001));
 }
+
+#[test]
+fn a_stepped_sine_is_diagnosed_step_by_step_in_text_and_json() {
+    // Two steps of the paper's actuator, simulated from a drive file as a user would.
+    let drive: String = std::iter::once("u\n".to_string())
+        .chain([14.0, 23.0].iter().flat_map(|&f: &f64| {
+            (0..5000).map(move |k| format!("{:.6}\n", (TAU * f * k as f64 * 1e-3).sin()))
+        }))
+        .collect();
+    let (drive_path, rec) = (tmp("steps-drive.csv"), tmp("steps.csv"));
+    std::fs::write(&drive_path, drive).unwrap();
+    let o = boucwen(&[
+        "simulate",
+        "--input",
+        drive_path.to_str().unwrap(),
+        "--column",
+        "u",
+        "--out",
+        rec.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let p = rec.to_str().unwrap();
+    let o = boucwen(&["diagnose", p]);
+    let text = String::from_utf8_lossy(&o.stdout);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(text.contains("the drive steps through 2 sines: 14.000 Hz 1.000 V (0 to "), "{text}");
+    assert!(text.contains("== step 2 of 2:") && text.contains("across the steps (held out):"), "{text}");
+    let o = boucwen(&["diagnose", p, "--json"]);
+    assert!(o.status.success());
+    let lines: Vec<serde_json::Value> =
+        String::from_utf8_lossy(&o.stdout).lines().map(|l| serde_json::from_str(l).unwrap()).collect();
+    assert_eq!(lines.len(), 2);
+    for (i, (j, order)) in lines.iter().zip([5, 3]).enumerate() {
+        assert_eq!(j["step"]["index"], i + 1);
+        assert_eq!(j["findings"][0]["kind"], "odd_harmonic", "{j}");
+        assert_eq!(j["findings"][0]["order"], order, "{j}");
+    }
+    // A window given: that part only, as one record.
+    let j = json(&boucwen(&["diagnose", p, "--window", "5.5:10", "--json"]));
+    assert_eq!(j["findings"][0]["order"], 3);
+    assert!(j.get("step").is_none());
+}

@@ -67,9 +67,9 @@
 //! The defaults ([`Thresholds::default`]) were set on records of the virtual bimorph with
 //! hidden effects (`crate::hidden`, feature `fixtures`); what they give over a batch of records is measured by
 //! `cargo bench --bench diagnose_batch`. Over 480 records (`-- --per-effect 60`), the
-//! largest term any candidate carried on the 120 clean records was 1.63 % of the output's
-//! fundamental RMS; the term of the hidden effect carried 3.29 % or more in 95 % of the
-//! effect records (1.71 % at least), hence 2 %. Misses are mostly a hidden 3rd or 2nd
+//! largest term any candidate carried on the 120 clean records was 1.67 % of the output's
+//! fundamental RMS; the term of the hidden effect carried 3.65 % or more in 95 % of the
+//! effect records (1.70 % at least), hence 2 %. Misses are mostly a hidden 3rd or 2nd
 //! harmonic the extended model imitates to within twice the noise floor, where no term can
 //! gain the 50 % the batch asks for (see the README for the shares).
 
