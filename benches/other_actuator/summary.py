@@ -13,6 +13,8 @@ print("|---|---|---|---|---|---|")
 for line in sys.stdin:
     d = json.loads(line)
     name = os.path.basename(d["file"]).removesuffix(".csv")
+    if d.get("step"):
+        name += f" (step {d['step']['index']} of {d['step']['of']}, {d['step']['amplitude_v']:.1f} V)"
     if "error" in d:
         print(f"| {name} | | | | | {d['error'].split(': ', 1)[-1]} |")
         continue
