@@ -154,14 +154,7 @@ fn main() {
 }
 
 /// The sine effects of `effects`, in the order printed.
-const SINE_EFFECTS: [SineEffect; 6] = [
-    SineEffect::Saturation,
-    SineEffect::SensorRange,
-    SineEffect::Creep,
-    SineEffect::Delay,
-    SineEffect::HarmonicAndDrift(5),
-    SineEffect::RangeAndHarmonic(3),
-];
+const SINE_EFFECTS: [SineEffect; 6] = SineEffect::ALL;
 
 fn truth_named(t: &Truth, kind: Kind, order: Option<u32>) -> bool {
     match t {

@@ -70,15 +70,7 @@ fn named(found: &[(String, Option<u64>, bool)], t: &Truth) -> bool {
 
 #[test]
 fn sine_findings_carry_their_evidence_and_name_each_hidden_cause() {
-    let effects = [
-        SineEffect::Saturation,
-        SineEffect::SensorRange,
-        SineEffect::Creep,
-        SineEffect::Delay,
-        SineEffect::HarmonicAndDrift(5),
-        SineEffect::RangeAndHarmonic(3),
-    ];
-    for e in effects {
+    for e in SineEffect::ALL {
         let c = SineCase::generate(e, 1).expect("case");
         let o = outcome(&[c.record().expect("record")]);
         let j = o.json();

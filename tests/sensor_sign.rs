@@ -64,14 +64,7 @@ fn a_hidden_effect_is_found_the_same_whichever_way_the_sensor_counts() {
 
 #[test]
 fn saturation_creep_delay_and_two_effects_are_found_the_same_whichever_way_the_sensor_counts() {
-    for e in [
-        SineEffect::Saturation,
-        SineEffect::SensorRange,
-        SineEffect::Creep,
-        SineEffect::Delay,
-        SineEffect::HarmonicAndDrift(5),
-        SineEffect::RangeAndHarmonic(3),
-    ] {
+    for e in SineEffect::ALL {
         let c = SineCase::generate(e, 1).expect("case");
         assert_same_either_way(&format!("{} seed 1", e.name()), &[c.record().expect("record")]);
     }

@@ -52,6 +52,17 @@ pub enum SineEffect {
 }
 
 impl SineEffect {
+    /// One of each kind (the harmonics at the orders the batch draws), in the order reports
+    /// list them.
+    pub const ALL: [SineEffect; 6] = [
+        SineEffect::Saturation,
+        SineEffect::SensorRange,
+        SineEffect::Creep,
+        SineEffect::Delay,
+        SineEffect::HarmonicAndDrift(5),
+        SineEffect::RangeAndHarmonic(3),
+    ];
+
     /// A short name: "saturation", "sensor-range", "creep", "delay", "odd5+drift",
     /// "sensor-range+odd3".
     pub fn name(&self) -> String {
@@ -425,14 +436,7 @@ mod tests {
 
     #[test]
     fn cases_are_reproducible_and_valid() {
-        for e in [
-            SineEffect::Saturation,
-            SineEffect::SensorRange,
-            SineEffect::Creep,
-            SineEffect::Delay,
-            SineEffect::HarmonicAndDrift(5),
-            SineEffect::RangeAndHarmonic(3),
-        ] {
+        for e in SineEffect::ALL {
             let a = SineCase::generate(e, 4).unwrap();
             let b = SineCase::generate(e, 4).unwrap();
             assert_eq!(a.case.scenario, b.case.scenario, "{}", e.name());
