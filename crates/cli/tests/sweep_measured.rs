@@ -133,3 +133,35 @@ fn bad_directories_are_one_line_errors() {
         "no broadband record",
     );
 }
+
+#[test]
+fn a_stepped_sine_record_gives_a_row_per_step() {
+    // The 14 and 23 Hz records one after the other in one file, beside the structure and
+    // loop records: the same orders as from one file each.
+    let dir = tmp("stepped");
+    let mut opts = SweepOptions::paper(10.0);
+    opts.freqs = vec![14.0, 23.0];
+    let ts = opts.scenario.sampling.ts_s;
+    let [(u, y), (ul, yl)] = sweep::structure_records(&opts.scenario, opts.drive_amplitude).unwrap();
+    Record::new("structure", 0.0, ts, u, y, None).unwrap().write(dir.join("structure.csv")).unwrap();
+    Record::new("loop", 0.0, ts, ul, yl, None).unwrap().write(dir.join("loop-1hz.csv")).unwrap();
+    let (mut u, mut y) = (vec![], vec![]);
+    for i in 0..2 {
+        let (ui, yi) = sweep::identification_record(&opts, i).unwrap();
+        u.extend(ui);
+        y.extend(yi);
+    }
+    Record::new("steps", 0.0, ts, u, y, None).unwrap().write(dir.join("steps.csv")).unwrap();
+    let out = tmp("stepped-out");
+    let o =
+        boucwen(&["sweep", "--measured", dir.to_str().unwrap(), "--out", out.to_str().unwrap(), "--json"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let j: serde_json::Value = serde_json::from_slice(&o.stdout).expect("one JSON object");
+    let rows = j["rows"].as_array().unwrap();
+    let orders: Vec<(f64, u64)> = rows
+        .iter()
+        .map(|r| (r["freq_hz"].as_f64().unwrap(), r["harmonic_order"].as_u64().unwrap()))
+        .collect();
+    assert_eq!(orders, [(14.0, 5), (23.0, 3)], "{j}");
+    assert!(j.to_string().contains("steps.csv [step 2 of 2: 23.000 Hz]"), "{j}");
+}

@@ -20,6 +20,9 @@
 //! of the output's fundamental behind the drive's and the loop's area relative to the
 //! ellipse of the two fundamentals' amplitudes (for an elliptic loop, the sine of the lag).
 //!
+//! A record that steps through several sines (a stepped sine, [`steady::sine_segments`])
+//! gives one sine record per step, named "FILE [step I of N: F Hz]".
+//!
 //! A file that cannot be read, is not a sine or a broadband record, is too short or repeats a
 //! frequency is skipped with a line saying why; the frequencies run on all cores.
 
@@ -189,6 +192,36 @@ pub fn records_in(dir: &Path) -> Result<Vec<PathBuf>, MeasuredError> {
     Ok(files)
 }
 
+/// A record that steps through several sines ([`steady::sine_segments`]) as one input per
+/// step, named "FILE [step I of N: F Hz]"; any other input as it is.
+fn steps_of(input: MeasuredInput) -> Vec<MeasuredInput> {
+    let Ok(r) = &input.record else { return vec![input] };
+    let n = r.u.len().min(r.y.len());
+    let segments = steady::sine_segments(&r.u[..n], r.ts);
+    if segments.len() < 2 {
+        return vec![input];
+    }
+    segments
+        .iter()
+        .enumerate()
+        .map(|(i, seg)| {
+            let name =
+                format!("{} [step {} of {}: {:.3} Hz]", input.name, i + 1, segments.len(), seg.freq_hz);
+            let (a, b) = (seg.start, seg.end);
+            let record = Record::new(
+                &name,
+                r.t0 + a as f64 * r.ts,
+                r.ts,
+                r.u[a..b].to_vec(),
+                r.y[a..b].to_vec(),
+                None,
+            )
+            .map_err(|e| e.to_string());
+            MeasuredInput { name, record }
+        })
+        .collect()
+}
+
 /// What a file is to the sweep.
 enum Role {
     Sine { f: f64, u: Vec<f64>, y: Vec<f64> },
@@ -265,6 +298,7 @@ fn loop_measures(u: &[f64], y: &[f64], f: f64, ts: f64) -> (f64, f64, f64, f64) 
 /// The measured sweep of `inputs` (see the module docs); the frequencies run on all cores.
 pub fn run(inputs: Vec<MeasuredInput>) -> Result<MeasuredSweep, MeasuredError> {
     let t0 = std::time::Instant::now();
+    let inputs: Vec<MeasuredInput> = inputs.into_iter().flat_map(steps_of).collect();
     let classified: Vec<Result<Classified, Skipped>> = inputs.into_par_iter().map(classify).collect();
     let mut skipped = vec![];
     let mut ok = vec![];
