@@ -1224,7 +1224,8 @@ pub fn sine_segments(u: &[f64], ts: f64) -> Vec<SineSegment> {
                 (d.kind == DriveKind::Sine && amp > 0.0).then_some((d.freq_hz, amp))
             })
             .collect();
-        let mut segs: Vec<SineSegment> = vec![];
+        // Runs of blocks of one sine, [first, last + 1), found from the blocks alone.
+        let mut runs: Vec<(usize, usize)> = vec![];
         let mut k = 0;
         while k < blocks.len() {
             let Some((f, a)) = blocks[k] else {
@@ -1240,20 +1241,31 @@ pub fn sine_segments(u: &[f64], ts: f64) -> Vec<SineSegment> {
                 }
                 e += 1;
             }
-            let (start, end) = (k * w, e * w);
-            if e - k < MIN_SEGMENT_BLOCKS {
-                // A sine that changes from block to block (a chirp, a modulation) is no step.
-                k = e;
-                continue;
-            }
-            // The whole segment's sine, and its periods.
-            let d = classify(&u[start..end], ts);
-            let amp = d.harmonics.first().map_or(0.0, |t| t.amp);
-            if d.kind == DriveKind::Sine && (end - start) as f64 * ts * d.freq_hz >= MIN_SEGMENT_PERIODS {
-                segs.push(SineSegment { start, end, freq_hz: d.freq_hz, amplitude_v: amp });
+            // A sine that changes from block to block (a chirp, a modulation) is no step.
+            if e - k >= MIN_SEGMENT_BLOCKS {
+                runs.push((k, e));
             }
             k = e;
         }
+        if runs == [(0, blocks.len())] {
+            // One steady sine throughout: finer cuts only split it further.
+            return vec![];
+        }
+        let run_blocks: usize = runs.iter().map(|(k, e)| e - k).sum();
+        if runs.len() < 2 || ((run_blocks * w) as f64) < MIN_SEGMENTS_SHARE * u.len() as f64 {
+            continue;
+        }
+        // Each run's sine over its whole length, and its periods.
+        let segs: Vec<SineSegment> = runs
+            .iter()
+            .filter_map(|&(k, e)| {
+                let (start, end) = (k * w, e * w);
+                let d = classify(&u[start..end], ts);
+                let amp = d.harmonics.first().map_or(0.0, |t| t.amp);
+                (d.kind == DriveKind::Sine && (end - start) as f64 * ts * d.freq_hz >= MIN_SEGMENT_PERIODS)
+                    .then_some(SineSegment { start, end, freq_hz: d.freq_hz, amplitude_v: amp })
+            })
+            .collect();
         let distinct = segs.windows(2).any(|p| {
             (p[0].freq_hz - p[1].freq_hz).abs() > SEGMENT_FREQ_TOLERANCE * p[0].freq_hz
                 || (p[0].amplitude_v - p[1].amplitude_v).abs() > LEVEL_TOLERANCE * p[0].amplitude_v

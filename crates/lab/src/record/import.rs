@@ -617,6 +617,10 @@ fn has_decimal_comma(field: &str) -> bool {
         && frac.parse::<f64>().is_ok()
 }
 
+/// Lines (neither blank nor comments) the layout is found in: a preamble and the table's
+/// first rows are among them.
+const LAYOUT_LINES: usize = 4096;
+
 /// Consecutive numeric rows that make a table: the first line of such a run starts the data.
 const TABLE_RUN: usize = 3;
 
@@ -628,8 +632,9 @@ struct Layout {
     start: usize,
     /// The table's separator.
     sep: Separator,
-    /// Whether numbers are written with a decimal comma (a separator other than the comma).
-    decimal_comma: bool,
+    /// Whether numbers are written with a decimal comma (a separator other than the comma);
+    /// `None` if no number with a fraction was among the lines looked at.
+    decimal_comma: Option<bool>,
 }
 
 /// The table's layout: the separator, the decimal comma, and the lines before the header
@@ -654,12 +659,13 @@ fn layout(lines: &[(usize, &str)]) -> Layout {
     };
     let width_of = |line: &str, sep: Separator| used(&fields(line, sep));
     let with_comma = |from: &[(usize, &str)], sep: Separator| {
-        sep != Separator::Comma
-            && from
-                .iter()
-                .flat_map(|(_, l)| fields(l, sep))
-                .find(|f| f.contains(['.', ',']) && number(f, true).is_some())
-                .is_some_and(has_decimal_comma)
+        if sep == Separator::Comma {
+            return Some(false);
+        }
+        from.iter()
+            .flat_map(|(_, l)| fields(l, sep))
+            .find(|f| f.contains(['.', ',']) && number(f, true).is_some())
+            .map(has_decimal_comma)
     };
     let first_sep = separator_of(lines[0].1);
     let plain = |sep: Separator| Layout { start: 0, sep, decimal_comma: with_comma(lines, sep) };
@@ -833,25 +839,37 @@ pub fn import_text(text: &str, source: &str, opts: &ImportOptions) -> Result<Imp
     let err = |line: usize, kind| RecordError::new(source, Some(At::Line(line)), kind);
     let whole = |kind| RecordError::new(source, None, kind);
     let text = text.strip_prefix('\u{feff}').unwrap_or(text);
-    let all: Vec<(usize, &str)> = text
+    let mut rest = text
         .split('\n')
         .enumerate()
         .map(|(i, l)| (i + 1, l.trim()))
-        .filter(|(_, l)| !l.is_empty() && !is_comment(l))
-        .collect();
-    if all.is_empty() {
+        .filter(|(_, l)| !l.is_empty() && !is_comment(l));
+    // The layout from the first lines (a preamble is a few dozen), the rest read as it comes.
+    let head: Vec<(usize, &str)> = rest.by_ref().take(LAYOUT_LINES).collect();
+    if head.is_empty() {
         return Err(whole(ErrorKind::Empty));
     }
-    let Layout { start, sep, decimal_comma } = layout(&all);
-    let preamble = (start > 0).then(|| Preamble { lines: start, table_line: all[start].0 });
-    let mut lines = all[start..].iter().copied().peekable();
+    let Layout { start, sep, decimal_comma } = layout(&head);
+    // Without a fraction among those lines, a comma under another separator is a decimal one.
+    let dc = decimal_comma.unwrap_or(sep != Separator::Comma);
+    let mut saw_comma = false;
+    let preamble = (start > 0).then(|| Preamble { lines: start, table_line: head[start].0 });
+    // The last line's number, if the file does not end with a line end.
+    let unended = (!text.ends_with(['\n', '\r']))
+        .then(|| {
+            text.rsplit('\n').next().map(|l| (text.bytes().filter(|&b| b == b'\n').count() + 1, l.trim()))
+        })
+        .flatten()
+        .filter(|(_, l)| !l.is_empty() && !is_comment(l))
+        .map(|(n, _)| n);
+    let mut lines = head[start..].iter().copied().chain(rest).peekable();
 
     // The first line of the table: header or not.
     let Some(&(first_line, first)) = lines.peek() else {
         return Err(whole(ErrorKind::Empty));
     };
     let first_fields = fields(first, sep);
-    let header = first_fields.iter().any(|f| !f.is_empty() && number(f, decimal_comma).is_none());
+    let header = first_fields.iter().any(|f| !f.is_empty() && number(f, dc).is_none());
     let mut names: Option<Vec<String>> = header.then(|| first_fields.iter().map(|s| s.to_string()).collect());
     let mut width = first_fields.len();
     if header {
@@ -1030,8 +1048,6 @@ pub fn import_text(text: &str, source: &str, opts: &ImportOptions) -> Result<Imp
     let mut u = Vec::with_capacity(rows_hint);
     let mut y = Vec::with_capacity(rows_hint);
     let mut d = Vec::with_capacity(if has_d { rows_hint } else { 0 });
-    // The last line, if the file does not end with a line end.
-    let unended = (!text.ends_with(['\n', '\r'])).then(|| all.last().map(|l| l.0)).flatten();
     let mut cut_short = None;
     let mut missing: Vec<(usize, usize, String)> = Vec::new();
     for (line_no, line) in lines {
@@ -1055,7 +1071,8 @@ pub fn import_text(text: &str, source: &str, opts: &ImportOptions) -> Result<Imp
                 y.push(f64::NAN);
                 continue;
             }
-            let raw: f64 = number(field, decimal_comma).ok_or_else(|| {
+            saw_comma |= dc && field.contains(',');
+            let raw: f64 = number(field, dc).ok_or_else(|| {
                 err(line_no, ErrorKind::NotANumber { column: col.name().into(), text: excerpt(field) })
             })?;
             if !raw.is_finite() {
@@ -1078,8 +1095,7 @@ pub fn import_text(text: &str, source: &str, opts: &ImportOptions) -> Result<Imp
                         }
                     }
                     t.push(v);
-                    t_unit
-                        .push(last_digit_unit(&field.replacen(',', ".", usize::from(decimal_comma))) * scale);
+                    t_unit.push(last_digit_unit(&field.replacen(',', ".", usize::from(dc))) * scale);
                 }
                 Col::U => u.push(v),
                 Col::Y => y.push(v),
@@ -1182,7 +1198,7 @@ pub fn import_text(text: &str, source: &str, opts: &ImportOptions) -> Result<Imp
         record,
         info: ImportInfo {
             separator: sep,
-            decimal_comma,
+            decimal_comma: decimal_comma.unwrap_or(saw_comma),
             preamble,
             cut_short,
             missing,
