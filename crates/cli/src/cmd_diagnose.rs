@@ -92,7 +92,6 @@ fn stepped(
             diagnose::steps_sentence(steps, r.ts, r.t0)
         ));
     }
-    let mut across = vec![];
     for (i, s) in steps.iter().enumerate() {
         let (from, to) = (t(s.segment.start), t(s.segment.end));
         let label = format!("{name} [step {} of {}: {:.3} Hz]", i + 1, steps.len(), s.segment.freq_hz);
@@ -106,25 +105,7 @@ fn stepped(
                     let (u, y) = (&r.u[s.segment.start..s.segment.end], &r.y[s.segment.start..s.segment.end]);
                     write_report(d, u, y, &label, &dir.join(format!("step-{}", i + 1)))?;
                 }
-                let findings: Vec<String> = d
-                    .findings()
-                    .iter()
-                    .filter(|f| f.kept)
-                    .map(|f| match f.order {
-                        Some(n) => format!("{} {n}", f.kind.as_str()),
-                        None => f.kind.as_str().to_string(),
-                    })
-                    .collect();
                 let j = d.json();
-                across.push(format!(
-                    "  {:8.3} Hz {:7.3} V: baseline {:.4} µm, extended {:.4} µm ({}), findings: {}",
-                    s.segment.freq_hz,
-                    s.segment.amplitude_v,
-                    j["baseline"]["rms_um"].as_f64().unwrap_or(f64::NAN),
-                    j["extended"]["rms_um"].as_f64().unwrap_or(f64::NAN),
-                    j["extended"]["model"].as_str().unwrap_or("?"),
-                    if findings.is_empty() { "none".to_string() } else { findings.join(", ") }
-                ));
                 if a.json {
                     let mut j = j;
                     j["file"] = serde_json::json!(name);
@@ -141,7 +122,6 @@ fn stepped(
                 }
             }
             Err(e) => {
-                across.push(format!("  {:8.3} Hz {:7.3} V: {e}", s.segment.freq_hz, s.segment.amplitude_v));
                 if a.json {
                     let j = serde_json::json!({"file": name, "step": step_json, "error": format!("{label}: {e}")});
                     out.push_str(&format!("{j}\n"));
@@ -156,6 +136,7 @@ fn stepped(
         }
     }
     if !a.json {
+        let across: Vec<String> = steps.iter().map(diagnose::SineStep::line).collect();
         out.push_str(&format!("\nacross the steps (held out):\n{}\n", across.join("\n")));
     }
     Ok(out)

@@ -558,6 +558,36 @@ pub struct SineStep {
     pub outcome: Result<Outcome, DiagnoseError>,
 }
 
+impl SineStep {
+    /// One line of what changes across the steps: "  14.000 Hz   1.000 V: baseline 0.2854 µm,
+    /// extended 0.0149 µm (enhanced(5,3)+offset), findings: odd_harmonic 5, odd_harmonic 3",
+    /// or the step's sentence.
+    pub fn line(&self) -> String {
+        let (f, a) = (self.segment.freq_hz, self.segment.amplitude_v);
+        let d = match &self.outcome {
+            Ok(d) => d,
+            Err(e) => return format!("  {f:8.3} Hz {a:7.3} V: {e}"),
+        };
+        let findings: Vec<String> = d
+            .findings()
+            .iter()
+            .filter(|f| f.kept)
+            .map(|f| match f.order {
+                Some(n) => format!("{} {n}", f.kind.as_str()),
+                None => f.kind.as_str().to_string(),
+            })
+            .collect();
+        let j = d.json();
+        format!(
+            "  {f:8.3} Hz {a:7.3} V: baseline {:.4} µm, extended {:.4} µm ({}), findings: {}",
+            j["baseline"]["rms_um"].as_f64().unwrap_or(f64::NAN),
+            j["extended"]["rms_um"].as_f64().unwrap_or(f64::NAN),
+            j["extended"]["model"].as_str().unwrap_or("?"),
+            if findings.is_empty() { "none".to_string() } else { findings.join(", ") }
+        )
+    }
+}
+
 /// A record that steps through several sines (a stepped sine: the same actuator at a series
 /// of frequencies or amplitudes in one file, [`steady::sine_segments`]), each diagnosed on
 /// its own (its own steady window, start-up and model), on all cores; `None` if the record
