@@ -34,6 +34,16 @@ fn write_records(dir: &Path, freqs: &[f64]) {
     }
 }
 
+/// The rows of `sweep --measured --json`, and each row's frequency and harmonic order.
+fn orders(j: &serde_json::Value) -> (&Vec<serde_json::Value>, Vec<(f64, u64)>) {
+    let rows = j["rows"].as_array().expect("rows");
+    let orders = rows
+        .iter()
+        .map(|r| (r["freq_hz"].as_f64().unwrap(), r["harmonic_order"].as_u64().unwrap()))
+        .collect();
+    (rows, orders)
+}
+
 fn one_line_error(o: &Output, want: &str) {
     let err = String::from_utf8_lossy(&o.stderr);
     assert_eq!(o.status.code(), Some(1), "{err}");
@@ -60,11 +70,7 @@ fn measured_records_give_the_orders_and_the_columns_of_the_simulated_sweep() {
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(o.status.success(), "{err}");
     let j: serde_json::Value = serde_json::from_slice(&o.stdout).expect("one JSON object");
-    let rows = j["rows"].as_array().unwrap();
-    let orders: Vec<(f64, u64)> = rows
-        .iter()
-        .map(|r| (r["freq_hz"].as_f64().unwrap(), r["harmonic_order"].as_u64().unwrap()))
-        .collect();
+    let (rows, orders) = orders(&j);
     // 5th at 14 Hz and 3rd at 23 Hz, as the paper and the simulated sweep; at 40 Hz the
     // harmonic order is the data's choice, as in the simulated sweep (tests/sweep.rs checks
     // that the two give the same columns on the same records).
@@ -157,11 +163,7 @@ fn a_stepped_sine_record_gives_a_row_per_step() {
         boucwen(&["sweep", "--measured", dir.to_str().unwrap(), "--out", out.to_str().unwrap(), "--json"]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let j: serde_json::Value = serde_json::from_slice(&o.stdout).expect("one JSON object");
-    let rows = j["rows"].as_array().unwrap();
-    let orders: Vec<(f64, u64)> = rows
-        .iter()
-        .map(|r| (r["freq_hz"].as_f64().unwrap(), r["harmonic_order"].as_u64().unwrap()))
-        .collect();
+    let (_, orders) = orders(&j);
     assert_eq!(orders, [(14.0, 5), (23.0, 3)], "{j}");
     assert!(j.to_string().contains("steps.csv [step 2 of 2: 23.000 Hz]"), "{j}");
 }
