@@ -108,6 +108,8 @@
 
 mod error;
 mod import;
+pub mod mimo;
+pub mod npy;
 mod replay;
 pub mod spikes;
 mod write;
