@@ -35,6 +35,7 @@ pub mod effects;
 pub mod excitation;
 pub mod experiment;
 pub mod fit;
+pub mod mimo;
 #[cfg(feature = "fixtures")]
 pub mod hidden;
 #[cfg(feature = "fixtures")]

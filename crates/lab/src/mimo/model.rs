@@ -1,0 +1,278 @@
+//! [`MimoModel`]: a linear modal state-space model with an optional hysteresis branch.
+//!
+//! ## Structure
+//! ```text
+//! x_l[k+1] = A x_l[k] + B₀ u[k]                      (the linear model's state, driving the branch)
+//! z_j[k]   = u_i[k] / s_j      or   x_l,i[k] / s_j     (channel j: an input, or a modal coordinate)
+//! w_j[k]   = h_j(z_j)[k]                               (Bouc–Wen, A = 1, shape j; hysteresis module)
+//! x[k+1]   = A x[k] + B u[k] + E w[k]
+//! y[k]     = C x[k] + D u[k] + F w[k]
+//! ```
+//! Without a branch it is the linear model `(A, B, C, D)`. A channel on an input is the
+//! Hammerstein form (`u → h(u)` through its own input matrix); a channel on a modal
+//! coordinate (the first state of a mode's block) puts a hysteretic term on that mode's
+//! displacement, the first-order effect of a hysteretic stiffness in the structure (the
+//! mode's frequency and damping change with amplitude): the Bouc–Wen oscillator family,
+//! taken open loop so that the model stays linear in `B, D, E, F`.
+//!
+//! Parameters are plain data (serde), apart from the simulation state.
+
+use super::MimoError;
+use super::hysteresis::Shape;
+use super::linear::{ModalSs, Mode};
+use nalgebra::DMatrix;
+use serde::{Deserialize, Serialize};
+
+/// Where a hysteresis channel takes its input from.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub enum Source {
+    /// Input `i`.
+    Input(usize),
+    /// State `i` of the linear state `x_l`.
+    State(usize),
+}
+
+/// One hysteresis channel.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Channel {
+    /// Its input.
+    pub source: Source,
+    /// `s_j`: the source is divided by it (its RMS on the fitted data).
+    pub scale: f64,
+    /// The loop's shape.
+    pub shape: Shape,
+}
+
+/// The hysteresis branch.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Branch {
+    /// The channels `w_j`.
+    pub channels: Vec<Channel>,
+    /// `B₀`, `n × m` row-major (drives `x_l`).
+    pub b0: Vec<f64>,
+    /// `E`, `n × q` row-major.
+    pub e: Vec<f64>,
+    /// `F`, `p × q` row-major.
+    pub f: Vec<f64>,
+}
+
+/// How a simulation starts.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Warmup {
+    /// From rest (state zero, hysteresis zero, previous input zero).
+    Rest,
+    /// From rest, then the input run this many times before the returned pass: the periodic
+    /// steady state of a periodic input.
+    Periods(usize),
+}
+
+/// A MIMO model (module docs). Matrices are row-major.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct MimoModel {
+    /// Sample rate the model runs at, Hz.
+    pub sample_rate_hz: f64,
+    /// Inputs `m`.
+    pub inputs: usize,
+    /// Outputs `p`.
+    pub outputs: usize,
+    /// The blocks of `A`.
+    pub modes: Vec<Mode>,
+    /// `B`, `n × m`.
+    pub b: Vec<f64>,
+    /// `C`, `p × n`.
+    pub c: Vec<f64>,
+    /// `D`, `p × m`.
+    pub d: Vec<f64>,
+    /// The hysteresis branch, if any.
+    pub branch: Option<Branch>,
+}
+
+fn row_major(m: &DMatrix<f64>) -> Vec<f64> {
+    m.transpose().as_slice().to_vec()
+}
+
+impl MimoModel {
+    /// The linear model `ss` at `sample_rate_hz`.
+    pub fn linear(ss: &ModalSs, sample_rate_hz: f64) -> Self {
+        Self {
+            sample_rate_hz,
+            inputs: ss.b.ncols(),
+            outputs: ss.c.nrows(),
+            modes: ss.modes.clone(),
+            b: row_major(&ss.b),
+            c: row_major(&ss.c),
+            d: row_major(&ss.d),
+            branch: None,
+        }
+    }
+
+    /// The linear part `(A, B, C, D)`.
+    pub fn linear_part(&self) -> ModalSs {
+        let n = self.order();
+        ModalSs {
+            modes: self.modes.clone(),
+            b: DMatrix::from_row_slice(n, self.inputs, &self.b),
+            c: DMatrix::from_row_slice(self.outputs, n, &self.c),
+            d: DMatrix::from_row_slice(self.outputs, self.inputs, &self.d),
+        }
+    }
+
+    /// States `n` of `A`.
+    pub fn order(&self) -> usize {
+        self.modes.iter().map(Mode::size).sum()
+    }
+
+    /// Checks sizes, finiteness, stability and the shapes.
+    pub fn validate(&self) -> Result<(), MimoError> {
+        let (n, m, p) = (self.order(), self.inputs, self.outputs);
+        if self.b.len() != n * m || self.c.len() != p * n || self.d.len() != p * m {
+            return Err(MimoError::Shape("B, C, D do not match the order and channels".into()));
+        }
+        if !(self.sample_rate_hz.is_finite() && self.sample_rate_hz > 0.0) {
+            return Err(MimoError::Parameter("sample rate"));
+        }
+        self.linear_part().validate()?;
+        if self.modes.iter().any(|md| !(md.radius() < 1.0)) {
+            return Err(MimoError::Parameter("A (a pole on or outside the unit circle)"));
+        }
+        if let Some(br) = &self.branch {
+            let q = br.channels.len();
+            if br.b0.len() != n * m || br.e.len() != n * q || br.f.len() != p * q {
+                return Err(MimoError::Shape("B0, E, F do not match the order and channels".into()));
+            }
+            for ch in &br.channels {
+                ch.shape.validate()?;
+                let ok = match ch.source {
+                    Source::Input(i) => i < m,
+                    Source::State(i) => i < n,
+                };
+                if !ok || !(ch.scale.is_finite() && ch.scale > 0.0) {
+                    return Err(MimoError::Parameter("a hysteresis channel's source or scale"));
+                }
+            }
+            if br.b0.iter().chain(&br.e).chain(&br.f).any(|v| !v.is_finite()) {
+                return Err(MimoError::Parameter("B0, E or F"));
+            }
+        }
+        Ok(())
+    }
+
+    /// Simulates the model on `u`, channels-major (`u[c·N + k]`, `N = u.len()/m` samples), and
+    /// returns `y` channels-major (`p·N`).
+    ///
+    /// ```
+    /// use boucwen_lab::mimo::linear::{ModalSs, Mode};
+    /// use boucwen_lab::mimo::model::{MimoModel, Warmup};
+    /// use nalgebra::DMatrix;
+    /// // y[k] = 0.5·x[k], x[k+1] = 0.5·x[k] + u[k].
+    /// let ss = ModalSs { modes: vec![Mode::Real(0.5)], b: DMatrix::from_element(1, 1, 1.0),
+    ///     c: DMatrix::from_element(1, 1, 0.5), d: DMatrix::zeros(1, 1) };
+    /// let m = MimoModel::linear(&ss, 1000.0);
+    /// assert_eq!(m.simulate(&[1.0, 0.0, 0.0], Warmup::Rest)?, vec![0.0, 0.5, 0.25]);
+    /// # Ok::<(), boucwen_lab::mimo::MimoError>(())
+    /// ```
+    pub fn simulate(&self, u: &[f64], warmup: Warmup) -> Result<Vec<f64>, MimoError> {
+        self.validate()?;
+        let (n, m, p) = (self.order(), self.inputs, self.outputs);
+        if m == 0 || u.len() % m != 0 {
+            return Err(MimoError::Shape(format!("{} input samples for {m} inputs", u.len())));
+        }
+        let len = u.len() / m;
+        let passes = match warmup {
+            Warmup::Rest => 1,
+            Warmup::Periods(w) => w + 1,
+        };
+        let empty: Vec<Channel> = Vec::new();
+        let (channels, b0, e, f) = match &self.branch {
+            Some(br) => (&br.channels, br.b0.as_slice(), br.e.as_slice(), br.f.as_slice()),
+            None => (&empty, &[][..], &[][..], &[][..]),
+        };
+        let q = channels.len();
+        let uses_xl = channels.iter().any(|c| matches!(c.source, Source::State(_)));
+        let mut x = vec![0.0; n];
+        let mut xl = vec![0.0; n];
+        let mut nx = vec![0.0; n];
+        let mut h = vec![0.0; q];
+        let mut zprev = vec![0.0; q];
+        let mut w = vec![0.0; q];
+        let mut uk = vec![0.0; m];
+        let mut y = vec![0.0; p * len];
+        for pass in 0..passes {
+            for k in 0..len {
+                for (c, v) in uk.iter_mut().enumerate() {
+                    *v = u[c * len + k];
+                }
+                for (j, ch) in channels.iter().enumerate() {
+                    let src = match ch.source {
+                        Source::Input(i) => uk[i],
+                        Source::State(i) => xl[i],
+                    };
+                    let z = src / ch.scale;
+                    h[j] = ch.shape.step(h[j], z - zprev[j]);
+                    zprev[j] = z;
+                    w[j] = h[j];
+                }
+                if pass + 1 == passes {
+                    for o in 0..p {
+                        let mut v = 0.0;
+                        for i in 0..n {
+                            v += self.c[o * n + i] * x[i];
+                        }
+                        for c in 0..m {
+                            v += self.d[o * m + c] * uk[c];
+                        }
+                        for j in 0..q {
+                            v += f[o * q + j] * w[j];
+                        }
+                        y[o * len + k] = v;
+                    }
+                }
+                advance(&self.modes, &x, &mut nx);
+                for i in 0..n {
+                    let mut v = nx[i];
+                    for c in 0..m {
+                        v += self.b[i * m + c] * uk[c];
+                    }
+                    for j in 0..q {
+                        v += e[i * q + j] * w[j];
+                    }
+                    x[i] = v;
+                }
+                if uses_xl {
+                    advance(&self.modes, &xl, &mut nx);
+                    for i in 0..n {
+                        let mut v = nx[i];
+                        for c in 0..m {
+                            v += b0[i * m + c] * uk[c];
+                        }
+                        xl[i] = v;
+                    }
+                }
+            }
+        }
+        if y.iter().any(|v| !v.is_finite()) {
+            return Err(MimoError::Numerical("simulation (the output is not finite)"));
+        }
+        Ok(y)
+    }
+}
+
+/// `out = A x` for a modal `A`.
+#[inline]
+pub(crate) fn advance(modes: &[Mode], x: &[f64], out: &mut [f64]) {
+    let mut i = 0;
+    for md in modes {
+        match *md {
+            Mode::Real(l) => {
+                out[i] = l * x[i];
+                i += 1;
+            }
+            Mode::Pair { sigma, omega } => {
+                let (a, b) = (x[i], x[i + 1]);
+                out[i] = sigma * a + omega * b;
+                out[i + 1] = -omega * a + sigma * b;
+                i += 2;
+            }
+        }
+    }
+}
