@@ -14,7 +14,11 @@ use std::time::Instant;
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let args: Vec<String> = std::env::args().skip(1).collect();
     let quick = args.iter().any(|a| a == "--quick");
-    let dir = args.iter().find(|a| !a.starts_with("--")).cloned().unwrap_or_else(|| "/work/shared/data/fine-steering-mirror".into());
+    let dir = args
+        .iter()
+        .find(|a| !a.starts_with("--"))
+        .cloned()
+        .unwrap_or_else(|| "/work/shared/data/fine-steering-mirror".into());
     let rec = MimoRecord::read_npy_folder(&dir, &MimoOptions::fine_steering_mirror())?;
     let nl = rec.levels.len();
     let opts = FitOptions::default();
@@ -28,7 +32,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let all: Vec<usize> = (0..nl).collect();
         let joint = fit_structure(&rec, &keep, &all, order, &opts, &quiet)?;
         let mut line = format!("fold {} (order {order}, {:.1} s):", h + 1, t.elapsed().as_secs_f64());
-        for li in 0..nl {
+        for (li, sum) in sums.iter_mut().enumerate() {
             let own = fit_structure(&rec, &keep, &[li], order, &opts.clone().linear(), &quiet)?;
             let l = &rec.levels[li];
             let e = [
@@ -36,10 +40,11 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 benchmark_error(&joint.linear, l, &[h])?,
                 benchmark_error(joint.best(), l, &[h])?,
             ];
-            for (s, v) in sums[li].iter_mut().zip(e) {
+            for (s, v) in sum.iter_mut().zip(e) {
                 *s += v;
             }
-            line += &format!("  {}: per-level {:.4} all-levels {:.4} hysteretic {:.4}", l.tag, e[0], e[1], e[2]);
+            line +=
+                &format!("  {}: per-level {:.4} all-levels {:.4} hysteretic {:.4}", l.tag, e[0], e[1], e[2]);
         }
         println!("{line}");
     }
@@ -56,14 +61,21 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         );
     }
     let t = Instant::now();
-    let show = |p: &boucwen_lab::mimo::Progress| eprintln!("[{:>6.1} s] {}: {}", t.elapsed().as_secs_f64(), p.stage, p.message);
+    let show = |p: &boucwen_lab::mimo::Progress| {
+        eprintln!("[{:>6.1} s] {}: {}", t.elapsed().as_secs_f64(), p.stage, p.message)
+    };
     let fit = fit_mimo(&rec, &opts, &show)?;
     println!("whole fit on every training realisation: order {} in {:.1} s", fit.order, fit.seconds);
     for d in &fit.diagnosis {
         let o: Vec<String> = d
             .outputs
             .iter()
-            .map(|s| format!("out {:.3} leaves {:.4} noise {:.4} (period {:.4}) NL {:.4}", s.output_rms, s.linear_leaves_rms, s.noise_rms, s.noise_rms_period, s.nonlinear_rms))
+            .map(|s| {
+                format!(
+                    "out {:.3} leaves {:.4} noise {:.4} (period {:.4}) NL {:.4}",
+                    s.output_rms, s.linear_leaves_rms, s.noise_rms, s.noise_rms_period, s.nonlinear_rms
+                )
+            })
             .collect();
         println!("  BLA {}: {}", d.bla.tag, o.join(" | "));
     }

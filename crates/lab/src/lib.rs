@@ -35,11 +35,11 @@ pub mod effects;
 pub mod excitation;
 pub mod experiment;
 pub mod fit;
-pub mod mimo;
 #[cfg(feature = "fixtures")]
 pub mod hidden;
 #[cfg(feature = "fixtures")]
 pub mod messy;
+pub mod mimo;
 pub mod periodic;
 pub mod plot;
 pub mod record;

@@ -68,6 +68,9 @@ pub struct LevelDiagnosis {
 pub fn bla(s: &Spectra, li: usize) -> Result<Bla, MimoError> {
     let l = s.levels.get(li).ok_or_else(|| MimoError::Data(format!("no level {li}")))?;
     let (m, p) = (s.inputs, s.outputs);
+    if l.u.is_empty() {
+        return Err(MimoError::Data(format!("level {}: no realisation kept", l.tag)));
+    }
     // Complete groups of m kept realisations (positions in l.u).
     let mut groups: Vec<Vec<usize>> = Vec::new();
     let max_r = l.realisations.iter().copied().max().unwrap_or(0);
@@ -83,7 +86,14 @@ pub fn bla(s: &Spectra, li: usize) -> Result<Bla, MimoError> {
     }
     let mm = groups.len() as f64;
     let lines: Vec<usize> = (0..s.lines()).filter(|&k| s.excited[k]).collect();
-    let mut out = Bla { tag: l.tag.clone(), lines: lines.clone(), g: vec![], var_noise: vec![], var_total: vec![], groups: groups.len() };
+    let mut out = Bla {
+        tag: l.tag.clone(),
+        lines: lines.clone(),
+        g: vec![],
+        var_noise: vec![],
+        var_total: vec![],
+        groups: groups.len(),
+    };
     for &k in &lines {
         let mut gs = Vec::with_capacity(groups.len());
         let mut vn = DMatrix::<f64>::zeros(p, m);
@@ -93,7 +103,8 @@ pub fn bla(s: &Spectra, li: usize) -> Result<Bla, MimoError> {
             let ui = u.try_inverse().ok_or(MimoError::Numerical("BLA: singular input matrix of a group"))?;
             for o in 0..p {
                 for j in 0..m {
-                    vn[(o, j)] += (0..m).map(|r| l.y_noise[grp[r]][k * p + o] * ui[(r, j)].norm_sqr()).sum::<f64>();
+                    vn[(o, j)] +=
+                        (0..m).map(|r| l.y_noise[grp[r]][k * p + o] * ui[(r, j)].norm_sqr()).sum::<f64>();
                 }
             }
             gs.push(y * ui);
@@ -167,9 +178,16 @@ pub fn mean_bla(blas: &[Bla]) -> Result<Bla, MimoError> {
     let mut out = first.clone();
     out.tag = "mean".into();
     for i in 0..first.lines.len() {
-        out.g[i] = blas.iter().fold(DMatrix::zeros(first.g[i].nrows(), first.g[i].ncols()), |a, b| a + &b.g[i]) * w;
-        out.var_noise[i] = blas.iter().fold(DMatrix::zeros(first.g[i].nrows(), first.g[i].ncols()), |a, b| a + &b.var_noise[i]) * nw;
-        out.var_total[i] = blas.iter().fold(DMatrix::zeros(first.g[i].nrows(), first.g[i].ncols()), |a, b| a + &b.var_total[i]) * nw;
+        out.g[i] =
+            blas.iter().fold(DMatrix::zeros(first.g[i].nrows(), first.g[i].ncols()), |a, b| a + &b.g[i]) * w;
+        out.var_noise[i] = blas
+            .iter()
+            .fold(DMatrix::zeros(first.g[i].nrows(), first.g[i].ncols()), |a, b| a + &b.var_noise[i])
+            * nw;
+        out.var_total[i] = blas
+            .iter()
+            .fold(DMatrix::zeros(first.g[i].nrows(), first.g[i].ncols()), |a, b| a + &b.var_total[i])
+            * nw;
     }
     out.groups = blas.iter().map(|b| b.groups).sum();
     Ok(out)

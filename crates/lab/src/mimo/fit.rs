@@ -142,12 +142,19 @@ pub struct MimoFit {
 }
 
 /// Identifies one model for every level of `rec` (module docs), reporting through `progress`.
-pub fn fit_mimo(rec: &MimoRecord, opts: &FitOptions, progress: &(dyn Fn(&Progress) + Sync)) -> Result<MimoFit, MimoError> {
+pub fn fit_mimo(
+    rec: &MimoRecord,
+    opts: &FitOptions,
+    progress: &(dyn Fn(&Progress) + Sync),
+) -> Result<MimoFit, MimoError> {
     let t0 = Instant::now();
     let levels: Vec<usize> = (0..rec.levels.len()).collect();
     let all = Spectra::new(rec, &|_, _| true)?;
     let diagnosis = levels.iter().map(|&li| bla::diagnose_level(&all, li)).collect::<Result<Vec<_>, _>>()?;
-    progress(&Progress { stage: "bla", message: format!("BLA of {} levels on {} excited lines", levels.len(), diagnosis[0].bla.lines.len()) });
+    progress(&Progress {
+        stage: "bla",
+        message: format!("BLA of {} levels on {} excited lines", levels.len(), diagnosis[0].bla.lines.len()),
+    });
     let mut order_scores = Vec::new();
     let order = match (opts.orders.as_slice(), opts.holdout) {
         ([], _) => return Err(MimoError::Data("no candidate order".into())),
@@ -166,7 +173,12 @@ pub fn fit_mimo(rec: &MimoRecord, opts: &FitOptions, progress: &(dyn Fn(&Progres
                 };
                 progress(&Progress {
                     stage: "order",
-                    message: format!("order {n}: held out (realisation {}) linear {:?} hysteretic {:?} µm", h + 1, round4(&s.linear), round4(&s.hysteretic)),
+                    message: format!(
+                        "order {n}: held out (realisation {}) linear {:?} hysteretic {:?} µm",
+                        h + 1,
+                        round4(&s.linear),
+                        round4(&s.hysteretic)
+                    ),
                 });
                 order_scores.push(s);
             }
@@ -178,7 +190,10 @@ pub fn fit_mimo(rec: &MimoRecord, opts: &FitOptions, progress: &(dyn Fn(&Progres
         }
     };
     let f = fit_structure(rec, &|_, _| true, &levels, order, opts, progress)?;
-    progress(&Progress { stage: "final", message: format!("order {order} fitted on every realisation in {:.1} s", t0.elapsed().as_secs_f64()) });
+    progress(&Progress {
+        stage: "final",
+        message: format!("order {order} fitted on every realisation in {:.1} s", t0.elapsed().as_secs_f64()),
+    });
     Ok(MimoFit {
         model: f.best().clone(),
         linear: f.linear,
@@ -210,22 +225,39 @@ pub fn fit_structure(
     let ss0 = linear::fsid(&z, &mean.g, n, None)?;
     let oe = OeData::new(&sp, levels)?;
     let c0 = oe.cost(&ss0);
-    progress(&Progress { stage: "subspace", message: format!("order {n}: subspace model, fit RMS {:.4} µm ({:.1} s)", oe.rms(c0), t0.elapsed().as_secs_f64()) });
+    progress(&Progress {
+        stage: "subspace",
+        message: format!(
+            "order {n}: subspace model, fit RMS {:.4} µm ({:.1} s)",
+            oe.rms(c0),
+            t0.elapsed().as_secs_f64()
+        ),
+    });
     let report = |it: usize, c: f64| {
         if it % 5 == 0 {
-            progress(&Progress { stage: "oe", message: format!("order {n}: output error, iteration {it}, fit RMS {:.4} µm", oe.rms(c)) });
+            progress(&Progress {
+                stage: "oe",
+                message: format!("order {n}: output error, iteration {it}, fit RMS {:.4} µm", oe.rms(c)),
+            });
         }
     };
     let (ss, rep) = linear::refine_oe(&ss0, &oe, opts.lm_iterations, &report)?;
     let linear_fit_rms = oe.rms(rep.cost.1);
     progress(&Progress {
         stage: "oe",
-        message: format!("order {n}: linear model, fit RMS {linear_fit_rms:.4} µm after {} iterations ({:.1} s)", rep.iterations, t0.elapsed().as_secs_f64()),
+        message: format!(
+            "order {n}: linear model, fit RMS {linear_fit_rms:.4} µm after {} iterations ({:.1} s)",
+            rep.iterations,
+            t0.elapsed().as_secs_f64()
+        ),
     });
     let lin = MimoModel::linear(&ss, rec.sample_rate_hz);
     let hysteretic = if opts.input_channels || opts.mode_channels {
         let m = fit_branch(rec, &sp, levels, &lin, opts)?;
-        progress(&Progress { stage: "hysteresis", message: format!("order {n}: hysteresis branch ({:.1} s)", t0.elapsed().as_secs_f64()) });
+        progress(&Progress {
+            stage: "hysteresis",
+            message: format!("order {n}: hysteresis branch ({:.1} s)", t0.elapsed().as_secs_f64()),
+        });
         Some(m)
     } else {
         None
@@ -256,7 +288,13 @@ fn modal_states(modes: &[Mode], b0: &[f64], u: &[f64], m: usize) -> Vec<f64> {
 }
 
 /// Step 4: the hysteresis branch on the linear model `lin`.
-fn fit_branch(rec: &MimoRecord, sp: &Spectra, levels: &[usize], lin: &MimoModel, opts: &FitOptions) -> Result<MimoModel, MimoError> {
+fn fit_branch(
+    rec: &MimoRecord,
+    sp: &Spectra,
+    levels: &[usize],
+    lin: &MimoModel,
+    opts: &FitOptions,
+) -> Result<MimoModel, MimoError> {
     let (m, p, len) = (sp.inputs, sp.outputs, sp.samples);
     let n = lin.order();
     let lines = sp.lines();
@@ -298,7 +336,8 @@ fn fit_branch(rec: &MimoRecord, sp: &Spectra, levels: &[usize], lin: &MimoModel,
     let nr = z_raw.len();
     let scales: Vec<f64> = (0..q)
         .map(|j| {
-            let ss: f64 = z_raw.iter().map(|z| z[j * len..(j + 1) * len].iter().map(|v| v * v).sum::<f64>()).sum();
+            let ss: f64 =
+                z_raw.iter().map(|z| z[j * len..(j + 1) * len].iter().map(|v| v * v).sum::<f64>()).sum();
             (ss / (nr * len) as f64).sqrt().max(1e-300)
         })
         .collect();
@@ -345,7 +384,9 @@ fn fit_branch(rec: &MimoRecord, sp: &Spectra, levels: &[usize], lin: &MimoModel,
                     let mut svv = DMatrix::<C64>::zeros(dim_v, dim_v);
                     let mut tyv = DMatrix::<C64>::zeros(p, dim_v);
                     for ri in 0..nr {
-                        let v = DVector::from_fn(dim_v, |i, _| if i < m { u_lines[ri][k * m + i] } else { w_lines[ri][k * q + i - m] });
+                        let v = DVector::from_fn(dim_v, |i, _| {
+                            if i < m { u_lines[ri][k * m + i] } else { w_lines[ri][k * q + i - m] }
+                        });
                         let y = DVector::from_fn(p, |o, _| y_lines[ri][k * p + o]);
                         // Σ V̄ Vᵀ and Σ Y Vᴴ
                         svv += v.map(|x| x.conj()) * v.transpose();
@@ -374,7 +415,8 @@ fn fit_branch(rec: &MimoRecord, sp: &Spectra, levels: &[usize], lin: &MimoModel,
             )
             .reduce(|| (DMatrix::zeros(dim, dim), DVector::zeros(dim)), |a, b| (a.0 + b.0, a.1 + b.1));
         let rhs_m = DMatrix::from_column_slice(dim, 1, rhs.as_slice());
-        let theta = linear::solve_spd(nn, &rhs_m).ok_or(MimoError::Numerical("hysteresis branch least squares"))?;
+        let theta =
+            linear::solve_spd(nn, &rhs_m).ok_or(MimoError::Numerical("hysteresis branch least squares"))?;
         let theta = DVector::from_column_slice(theta.as_slice());
         let cost = yy - theta.dot(&rhs);
         if best.as_ref().is_none_or(|b| cost < b.0) {
@@ -389,7 +431,8 @@ fn fit_branch(rec: &MimoRecord, sp: &Spectra, levels: &[usize], lin: &MimoModel,
     model.d = (0..p).flat_map(|o| (0..m).map(move |i| (o, i))).map(|(o, i)| th(n + o, i)).collect();
     let e = (0..n).flat_map(|a| (0..q).map(move |j| (a, j))).map(|(a, j)| th(a, m + j)).collect();
     let f = (0..p).flat_map(|o| (0..q).map(move |j| (o, j))).map(|(o, j)| th(n + o, m + j)).collect();
-    let channels = sources.iter().zip(&scales).map(|(&source, &scale)| Channel { source, scale, shape }).collect();
+    let channels =
+        sources.iter().zip(&scales).map(|(&source, &scale)| Channel { source, scale, shape }).collect();
     model.branch = Some(Branch { channels, b0: lin.b.clone(), e, f });
     model.validate()?;
     Ok(model)
@@ -400,7 +443,10 @@ fn fit_branch(rec: &MimoRecord, sp: &Spectra, levels: &[usize], lin: &MimoModel,
 pub fn benchmark_error(model: &MimoModel, level: &Level, realisations: &[usize]) -> Result<f64, MimoError> {
     let (m, p, len) = (level.u.channels, level.y.channels, level.u.samples);
     if m != model.inputs || p != model.outputs {
-        return Err(MimoError::Shape(format!("a {m}-input {p}-output level for a {}×{} model", model.inputs, model.outputs)));
+        return Err(MimoError::Shape(format!(
+            "a {m}-input {p}-output level for a {}×{} model",
+            model.inputs, model.outputs
+        )));
     }
     if len <= SKIP_SAMPLES {
         return Err(MimoError::Data(format!("periods of {len} samples")));
@@ -418,7 +464,8 @@ pub fn benchmark_error(model: &MimoModel, level: &Level, realisations: &[usize])
             let mut s = 0.0;
             for o in 0..p {
                 let y = level.y.get(r, pp, o);
-                let ms: f64 = (SKIP_SAMPLES..len).map(|k| (y[k] - yhat[o * len + k]).powi(2)).sum::<f64>() / (len - SKIP_SAMPLES) as f64;
+                let ms: f64 = (SKIP_SAMPLES..len).map(|k| (y[k] - yhat[o * len + k]).powi(2)).sum::<f64>()
+                    / (len - SKIP_SAMPLES) as f64;
                 s += ms.sqrt();
             }
             Ok(s / p as f64)

@@ -44,7 +44,7 @@ impl Shape {
 
     /// Checks `|A0| < 1`, `γ + β > 0` and finiteness.
     pub fn validate(&self) -> Result<(), MimoError> {
-        if !(self.a0.abs() < 1.0) {
+        if self.a0.is_nan() || self.a0.abs() >= 1.0 {
             return Err(MimoError::Parameter("A0 of a hysteresis shape"));
         }
         if !(self.gamma.is_finite() && self.beta.is_finite() && self.gamma + self.beta > 0.0) {

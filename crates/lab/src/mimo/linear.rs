@@ -172,7 +172,11 @@ impl ModalSs {
     /// Checks the sizes and that every value is finite.
     pub fn validate(&self) -> Result<(), MimoError> {
         let n = self.order();
-        if self.b.nrows() != n || self.c.ncols() != n || self.d.nrows() != self.c.nrows() || self.d.ncols() != self.b.ncols() {
+        if self.b.nrows() != n
+            || self.c.ncols() != n
+            || self.d.nrows() != self.c.nrows()
+            || self.d.ncols() != self.b.ncols()
+        {
             return Err(MimoError::Shape(format!(
                 "A of order {n}, B {}×{}, C {}×{}, D {}×{}",
                 self.b.nrows(),
@@ -338,7 +342,8 @@ pub fn balance(ss: &mut ModalSs) {
 /// `λ → 0.999/λ̄` when `|λ| ≥ 1`) and `T` with `A T = T A_modal` for the original poles.
 fn modal_form(a: &DMatrix<f64>) -> Result<(Vec<Mode>, DMatrix<f64>), MimoError> {
     let n = a.nrows();
-    let schur = nalgebra::Schur::try_new(a.clone(), 1e-14, 10_000).ok_or(MimoError::Numerical("eigenvalues of A"))?;
+    let schur =
+        nalgebra::Schur::try_new(a.clone(), 1e-14, 10_000).ok_or(MimoError::Numerical("eigenvalues of A"))?;
     let mut eig: Vec<C64> = schur.complex_eigenvalues().iter().copied().collect();
     eig.sort_by(|x, y| x.im.abs().total_cmp(&y.im.abs()).then(x.re.total_cmp(&y.re)));
     let ac = a.map(c64);
@@ -355,7 +360,9 @@ fn modal_form(a: &DMatrix<f64>) -> Result<(Vec<Mode>, DMatrix<f64>), MimoError> 
         let is_pair = l.im.abs() > 1e-9 * l.norm().max(1e-300);
         if is_pair {
             // Mark its conjugate.
-            if let Some(j) = (0..eig.len()).find(|&j| !used[j] && (eig[j] - l.conj()).norm() < 1e-6 * l.norm().max(1e-12)) {
+            if let Some(j) =
+                (0..eig.len()).find(|&j| !used[j] && (eig[j] - l.conj()).norm() < 1e-6 * l.norm().max(1e-12))
+            {
                 used[j] = true;
             }
             if col + 2 > n {
@@ -432,7 +439,8 @@ impl OeData {
     /// From the excited lines of the levels `levels` of `s`.
     pub fn new(s: &Spectra, levels: &[usize]) -> Result<Self, MimoError> {
         let (m, p) = (s.inputs, s.outputs);
-        let mut out = OeData { z: vec![], g: vec![], l: vec![], floor: 0.0, realisations: 0, samples: s.samples };
+        let mut out =
+            OeData { z: vec![], g: vec![], l: vec![], floor: 0.0, realisations: 0, samples: s.samples };
         for &li in levels {
             out.realisations += s.levels.get(li).map_or(0, |l| l.u.len());
         }
@@ -479,7 +487,10 @@ impl OeData {
     /// `√((2/N²)(cost + floor)/R)`.
     pub fn rms(&self, cost: f64) -> f64 {
         let n = self.samples as f64;
-        (2.0 / (n * n) * (cost + self.floor).max(0.0) / self.realisations.max(1) as f64 / self.g[0].nrows() as f64).sqrt()
+        (2.0 / (n * n) * (cost + self.floor).max(0.0)
+            / self.realisations.max(1) as f64
+            / self.g[0].nrows() as f64)
+            .sqrt()
     }
 }
 
@@ -535,7 +546,12 @@ fn unpack(template: &ModalSs, th: &[f64]) -> ModalSs {
 }
 
 /// `JᵀJ` and `Jᵀr` of the residuals `(G − Ĝ)L` (realified) on lines `range`.
-fn normal_equations(ss: &ModalSs, data: &OeData, range: std::ops::Range<usize>, np: usize) -> (DMatrix<f64>, DVector<f64>) {
+fn normal_equations(
+    ss: &ModalSs,
+    data: &OeData,
+    range: std::ops::Range<usize>,
+    np: usize,
+) -> (DMatrix<f64>, DVector<f64>) {
     let (n, m, p) = (ss.order(), ss.b.ncols(), ss.c.nrows());
     let rows_per = 2 * p * m;
     let mut jac = DMatrix::<f64>::zeros(rows_per * range.len(), np);

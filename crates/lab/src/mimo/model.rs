@@ -132,7 +132,7 @@ impl MimoModel {
             return Err(MimoError::Parameter("sample rate"));
         }
         self.linear_part().validate()?;
-        if self.modes.iter().any(|md| !(md.radius() < 1.0)) {
+        if self.modes.iter().any(|md| md.radius().is_nan() || md.radius() >= 1.0) {
             return Err(MimoError::Parameter("A (a pole on or outside the unit circle)"));
         }
         if let Some(br) = &self.branch {
@@ -146,7 +146,7 @@ impl MimoModel {
                     Source::Input(i) => i < m,
                     Source::State(i) => i < n,
                 };
-                if !ok || !(ch.scale.is_finite() && ch.scale > 0.0) {
+                if !(ok && ch.scale.is_finite() && ch.scale > 0.0) {
                     return Err(MimoError::Parameter("a hysteresis channel's source or scale"));
                 }
             }
@@ -171,6 +171,7 @@ impl MimoModel {
     /// assert_eq!(m.simulate(&[1.0, 0.0, 0.0], Warmup::Rest)?, vec![0.0, 0.5, 0.25]);
     /// # Ok::<(), boucwen_lab::mimo::MimoError>(())
     /// ```
+    #[allow(clippy::needless_range_loop, reason = "the indices are those of the matrix products in the docs")]
     pub fn simulate(&self, u: &[f64], warmup: Warmup) -> Result<Vec<f64>, MimoError> {
         self.validate()?;
         let (n, m, p) = (self.order(), self.inputs, self.outputs);

@@ -81,6 +81,9 @@ impl Spectra {
         for (li, l) in rec.levels.iter().enumerate() {
             levels.push(level_spectra(l, li, keep, &dft, lines)?);
         }
+        if levels.iter().all(|l| l.u.is_empty()) {
+            return Err(MimoError::Data("no realisation kept".into()));
+        }
         let mut power = vec![0.0; lines];
         for l in &levels {
             for u in &l.u {
@@ -108,7 +111,14 @@ fn level_spectra(
     lines: usize,
 ) -> Result<LevelSpectra, MimoError> {
     let (m, p, np) = (l.u.channels, l.y.channels, l.u.periods);
-    let mut out = LevelSpectra { tag: l.tag.clone(), u: vec![], y: vec![], y_noise: vec![], periods: np, realisations: vec![] };
+    let mut out = LevelSpectra {
+        tag: l.tag.clone(),
+        u: vec![],
+        y: vec![],
+        y_noise: vec![],
+        periods: np,
+        realisations: vec![],
+    };
     for r in (0..l.u.realisations).filter(|&r| keep(li, r)) {
         let mut u = vec![Complex::new(0.0, 0.0); lines * m];
         for c in 0..m {
@@ -133,9 +143,6 @@ fn level_spectra(
         out.y.push(y);
         out.y_noise.push(var);
         out.realisations.push(r);
-    }
-    if out.u.is_empty() {
-        return Err(MimoError::Data(format!("level {}: no realisation kept", l.tag)));
     }
     Ok(out)
 }

@@ -445,7 +445,7 @@ impl MimoRecord {
         let fs = match (t_col, opts.sample_rate_hz) {
             (Some(_), given) => {
                 let dt = (t[rows - 1] - t[0]) / (rows - 1) as f64;
-                if !(dt > 0.0) {
+                if dt.is_nan() || dt <= 0.0 {
                     return Err(invalid(source, "time does not increase"));
                 }
                 let fs = 1.0 / dt;
