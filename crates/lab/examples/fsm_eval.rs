@@ -6,6 +6,8 @@
 //! every level: a linear model per level, one linear model for all levels, and the
 //! hysteretic model, and prints the benchmark's metric on realisation `h` per level. Then the
 //! whole fit ([`fit_mimo`], order choice included) on every training realisation, timed.
+//! `--no-per-level` skips the per-level linear models, `--no-full` the whole fit;
+//! `MIMO_ORDER=n` sets the folds' order (28).
 
 use boucwen_lab::mimo::fit::{FitOptions, benchmark_error, fit_mimo, fit_structure};
 use boucwen_lab::record::mimo::{MimoOptions, MimoRecord};
@@ -14,6 +16,8 @@ use std::time::Instant;
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let args: Vec<String> = std::env::args().skip(1).collect();
     let quick = args.iter().any(|a| a == "--quick");
+    let per_level = !args.iter().any(|a| a == "--no-per-level");
+    let full = !args.iter().any(|a| a == "--no-full");
     let dir = args
         .iter()
         .find(|a| !a.starts_with("--"))
@@ -33,10 +37,17 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let joint = fit_structure(&rec, &keep, &all, order, &opts, &quiet)?;
         let mut line = format!("fold {} (order {order}, {:.1} s):", h + 1, t.elapsed().as_secs_f64());
         for (li, sum) in sums.iter_mut().enumerate() {
-            let own = fit_structure(&rec, &keep, &[li], order, &opts.clone().linear(), &quiet)?;
             let l = &rec.levels[li];
             let e = [
-                benchmark_error(&own.linear, l, &[h])?,
+                if per_level {
+                    benchmark_error(
+                        &fit_structure(&rec, &keep, &[li], order, &opts.clone().linear(), &quiet)?.linear,
+                        l,
+                        &[h],
+                    )?
+                } else {
+                    f64::NAN
+                },
                 benchmark_error(&joint.linear, l, &[h])?,
                 benchmark_error(joint.best(), l, &[h])?,
             ];
@@ -59,6 +70,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             s[2] / k,
             100.0 * (1.0 - s[2] / s[1])
         );
+    }
+    if !full {
+        return Ok(());
     }
     let t = Instant::now();
     let show = |p: &boucwen_lab::mimo::Progress| {

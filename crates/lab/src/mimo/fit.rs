@@ -71,6 +71,9 @@ pub struct FitOptions {
     pub shapes: Vec<Shape>,
     /// The realisation of every level kept apart to choose the order.
     pub holdout: Option<usize>,
+    /// Weigh each level's squared errors by `1/RMS` of its outputs, so that each level's RMS
+    /// error counts alike in the sum of the metric (otherwise the loudest level dominates).
+    pub balance_levels: bool,
 }
 
 impl Default for FitOptions {
@@ -82,6 +85,7 @@ impl Default for FitOptions {
             mode_channels: true,
             shapes: vec![Shape::symmetric(0.1), Shape::symmetric(0.3), Shape::symmetric(1.0)],
             holdout: Some(5),
+            balance_levels: true,
         }
     }
 }
@@ -102,7 +106,8 @@ pub struct Fitted {
     pub linear: MimoModel,
     /// The hysteretic model (step 4), `None` without channels.
     pub hysteretic: Option<MimoModel>,
-    /// RMS (µm) of the linear model's error on the fitted period means (Parseval).
+    /// RMS (µm) of the linear model's error on the fitted period means (Parseval), with the
+    /// level weights of [`FitOptions::balance_levels`] (the quietest level weighs 1).
     pub linear_fit_rms: f64,
 }
 
@@ -223,7 +228,18 @@ pub fn fit_structure(
     let mean = bla::mean_bla(&blas)?;
     let z: Vec<C64> = mean.lines.iter().map(|&k| sp.z(k)).collect();
     let ss0 = linear::fsid(&z, &mean.g, n, None)?;
-    let oe = OeData::new(&sp, levels)?;
+    let weights: Vec<f64> = levels
+        .iter()
+        .map(|&li| {
+            let l = &sp.levels[li];
+            let ms = l.y.iter().map(|y| y.iter().map(|v| v.norm_sqr()).sum::<f64>()).sum::<f64>()
+                / l.y.len().max(1) as f64;
+            if opts.balance_levels && ms > 0.0 { 1.0 / ms.sqrt() } else { 1.0 }
+        })
+        .collect();
+    let wmax = weights.iter().copied().fold(0.0, f64::max);
+    let weights: Vec<f64> = weights.iter().map(|w| w / wmax).collect();
+    let oe = OeData::weighted(&sp, levels, &weights)?;
     let c0 = oe.cost(&ss0);
     progress(&Progress {
         stage: "subspace",
@@ -253,7 +269,7 @@ pub fn fit_structure(
     });
     let lin = MimoModel::linear(&ss, rec.sample_rate_hz);
     let hysteretic = if opts.input_channels || opts.mode_channels {
-        let m = fit_branch(rec, &sp, levels, &lin, opts)?;
+        let m = fit_branch(rec, &sp, levels, &weights, &lin, opts)?;
         progress(&Progress {
             stage: "hysteresis",
             message: format!("order {n}: hysteresis branch ({:.1} s)", t0.elapsed().as_secs_f64()),
@@ -292,6 +308,7 @@ fn fit_branch(
     rec: &MimoRecord,
     sp: &Spectra,
     levels: &[usize],
+    weights: &[f64],
     lin: &MimoModel,
     opts: &FitOptions,
 ) -> Result<MimoModel, MimoError> {
@@ -315,7 +332,8 @@ fn fit_branch(
     let mut z_raw: Vec<Vec<f64>> = Vec::new(); // per realisation, q × N
     let mut u_lines: Vec<&[C64]> = Vec::new();
     let mut y_lines: Vec<&[C64]> = Vec::new();
-    for &li in levels {
+    let mut w_real: Vec<f64> = Vec::new();
+    for (&li, &wl) in levels.iter().zip(weights) {
         let ls = &sp.levels[li];
         for (ri, &r) in ls.realisations.iter().enumerate() {
             let u = rec.levels[li].u.mean_channels(r);
@@ -331,6 +349,7 @@ fn fit_branch(
             z_raw.push(z);
             u_lines.push(&ls.u[ri]);
             y_lines.push(&ls.y[ri]);
+            w_real.push(wl);
         }
     }
     let nr = z_raw.len();
@@ -341,7 +360,8 @@ fn fit_branch(
             (ss / (nr * len) as f64).sqrt().max(1e-300)
         })
         .collect();
-    let yy: f64 = y_lines.iter().map(|y| y.iter().map(|v| v.norm_sqr()).sum::<f64>()).sum();
+    let yy: f64 =
+        y_lines.iter().zip(&w_real).map(|(y, w)| w * y.iter().map(|v| v.norm_sqr()).sum::<f64>()).sum();
     let ss = lin.linear_part();
     let c = ss.c.clone();
     let fft = FftPlanner::<f64>::new().plan_fft_forward(len);
@@ -389,8 +409,9 @@ fn fit_branch(
                         });
                         let y = DVector::from_fn(p, |o, _| y_lines[ri][k * p + o]);
                         // Σ V̄ Vᵀ and Σ Y Vᴴ
-                        svv += v.map(|x| x.conj()) * v.transpose();
-                        tyv += &y * v.adjoint();
+                        let wr = Complex::new(w_real[ri], 0.0);
+                        svv += v.map(|x| x.conj()) * v.transpose() * wr;
+                        tyv += &y * v.adjoint() * wr;
                     }
                     let pr = pp.map(|x| x.re);
                     let pi = pp.map(|x| x.im);

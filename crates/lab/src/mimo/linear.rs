@@ -438,6 +438,15 @@ pub struct OeData {
 impl OeData {
     /// From the excited lines of the levels `levels` of `s`.
     pub fn new(s: &Spectra, levels: &[usize]) -> Result<Self, MimoError> {
+        Self::weighted(s, levels, &vec![1.0; levels.len()])
+    }
+
+    /// As [`Self::new`], with level `levels[i]`'s squared errors weighted by `weights[i]`
+    /// (`Σ_r` becomes `Σ_levels w Σ_r`).
+    pub fn weighted(s: &Spectra, levels: &[usize], weights: &[f64]) -> Result<Self, MimoError> {
+        if weights.len() != levels.len() || weights.iter().any(|w| !(w.is_finite() && *w > 0.0)) {
+            return Err(MimoError::Parameter("level weights"));
+        }
         let (m, p) = (s.inputs, s.outputs);
         let mut out =
             OeData { z: vec![], g: vec![], l: vec![], floor: 0.0, realisations: 0, samples: s.samples };
@@ -448,14 +457,14 @@ impl OeData {
             let mut ss = DMatrix::<C64>::zeros(m, m);
             let mut ty = DMatrix::<C64>::zeros(p, m);
             let mut yy = 0.0;
-            for &li in levels {
+            for (&li, &w) in levels.iter().zip(weights) {
                 let l = s.levels.get(li).ok_or_else(|| MimoError::Data(format!("no level {li}")))?;
                 for r in 0..l.u.len() {
                     let u = DVector::from_fn(m, |c, _| l.u[r][k * m + c]);
                     let y = DVector::from_fn(p, |o, _| l.y[r][k * p + o]);
-                    ss += &u * u.adjoint();
-                    ty += &y * u.adjoint();
-                    yy += y.norm_squared();
+                    ss += &u * u.adjoint() * c64(w);
+                    ty += &y * u.adjoint() * c64(w);
+                    yy += w * y.norm_squared();
                 }
             }
             let Some(ch) = ss.clone().cholesky() else { continue };
