@@ -19,8 +19,9 @@
 //! and a step on which `h` reaches 0 is split there (it crosses at most once). For small
 //! steps it agrees with the Euler step (a test checks it against the core's `h_next`).
 //!
-//! The amplitude `A` is 1 here ([`Shape`]): a model scales `h` by its own gains, as the
-//! homogeneity `h(A, A0, γ, β; z) = A·h(1, A0/A, γ/A·A, …)` allows once `z` is scaled.
+//! The amplitude `A` is 1 here ([`Shape`]): a model multiplies `h` by its own gains (the
+//! columns of `E` and `F`) and divides `z` by a scale, which together cover any `A` (the
+//! equation is homogeneous: `h(A, A0, γ, β) = A·h(1, A0/A, γ, β)` for `A > 0`).
 
 use super::MimoError;
 use serde::{Deserialize, Serialize};
