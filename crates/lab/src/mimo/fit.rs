@@ -34,6 +34,7 @@
 
 use super::MimoError;
 use super::bla::{self, LevelDiagnosis};
+use super::feedback::{self, FeedbackOptions, Periods};
 use super::hysteresis::Shape;
 use super::linear::{self, Mode, OeData, Resolvent};
 use super::model::{Branch, Channel, MimoModel, Source, Warmup, advance};
@@ -50,7 +51,7 @@ pub const SKIP_SAMPLES: usize = 100;
 /// Where a fit is.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Progress {
-    /// The step (`"bla"`, `"subspace"`, `"oe"`, `"hysteresis"`, `"order"`, `"final"`).
+    /// The step (`"bla"`, `"subspace"`, `"oe"`, `"feedback"`, `"hysteresis"`, `"order"`, `"final"`).
     pub stage: &'static str,
     /// What it did, for a person.
     pub message: String,
@@ -63,7 +64,11 @@ pub struct FitOptions {
     pub orders: Vec<usize>,
     /// Levenberg–Marquardt iterations of the output-error refinement, at most.
     pub lm_iterations: usize,
-    /// A hysteresis channel on each input (Hammerstein).
+    /// The modal LFR ([`feedback`]): a Bouc–Wen restoring force in feedback on each mode,
+    /// fitted by output error in the time domain (`None`: no loop).
+    pub feedback: Option<FeedbackOptions>,
+    /// An open-loop hysteresis channel on each input (Hammerstein); used only without
+    /// [`Self::feedback`].
     pub input_channels: bool,
     /// A hysteresis channel on each mode's displacement.
     pub mode_channels: bool,
@@ -79,10 +84,11 @@ pub struct FitOptions {
 impl Default for FitOptions {
     fn default() -> Self {
         Self {
-            orders: vec![20, 28],
+            orders: vec![28],
             lm_iterations: 20,
-            input_channels: true,
-            mode_channels: true,
+            feedback: Some(FeedbackOptions::default()),
+            input_channels: false,
+            mode_channels: false,
             shapes: vec![Shape::symmetric(0.1), Shape::symmetric(0.3), Shape::symmetric(1.0)],
             holdout: Some(5),
             balance_levels: true,
@@ -93,6 +99,7 @@ impl Default for FitOptions {
 impl FitOptions {
     /// No hysteresis branch: the linear model only.
     pub fn linear(mut self) -> Self {
+        self.feedback = None;
         self.input_channels = false;
         self.mode_channels = false;
         self
@@ -268,7 +275,48 @@ pub fn fit_structure(
         ),
     });
     let lin = MimoModel::linear(&ss, rec.sample_rate_hz);
-    let hysteretic = if opts.input_channels || opts.mode_channels {
+    let hysteretic = if let Some(fo) = &opts.feedback {
+        let mut data = Periods {
+            inputs: sp.inputs,
+            outputs: sp.outputs,
+            samples: sp.samples,
+            u: vec![],
+            y: vec![],
+            weight: vec![],
+        };
+        for (&li, &w) in levels.iter().zip(&weights) {
+            let l = &rec.levels[li];
+            for &r in &sp.levels[li].realisations {
+                data.u.push(l.u.mean_channels(r));
+                data.y.push(l.y.mean_channels(r));
+                data.weight.push(w);
+            }
+        }
+        let t1 = Instant::now();
+        let report = |it: usize, c: f64| {
+            let rms = (c / data.weight.iter().sum::<f64>() / (data.samples * data.outputs) as f64).sqrt();
+            progress(&Progress {
+                stage: "feedback",
+                message: format!(
+                    "order {n}: feedback loop, iteration {it}, fit RMS {rms:.4} µm ({:.1} s)",
+                    t1.elapsed().as_secs_f64()
+                ),
+            });
+        };
+        let (m, rep) = feedback::fit_feedback(&lin, &data, fo, &report)?;
+        let w = data.weight.iter().sum::<f64>() * (data.samples * data.outputs) as f64;
+        progress(&Progress {
+            stage: "feedback",
+            message: format!(
+                "order {n}: feedback loop, fit RMS {:.4} → {:.4} µm after {} iterations ({:.1} s)",
+                (rep.cost.0 / w).sqrt(),
+                (rep.cost.1 / w).sqrt(),
+                rep.iterations,
+                t0.elapsed().as_secs_f64()
+            ),
+        });
+        Some(m)
+    } else if opts.input_channels || opts.mode_channels {
         let m = fit_branch(rec, &sp, levels, &weights, &lin, opts)?;
         progress(&Progress {
             stage: "hysteresis",
@@ -342,7 +390,7 @@ fn fit_branch(
             for (j, s) in sources.iter().enumerate() {
                 let src = match *s {
                     Source::Input(i) => &u[i * len..(i + 1) * len],
-                    Source::State(i) => &xl[i * len..(i + 1) * len],
+                    Source::State(i) | Source::Feedback(i) => &xl[i * len..(i + 1) * len],
                 };
                 z[j * len..(j + 1) * len].copy_from_slice(src);
             }

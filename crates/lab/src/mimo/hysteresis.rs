@@ -90,6 +90,48 @@ impl Shape {
         go(0.0, c2, dz - x0)
     }
 
+    /// As [`Self::step`], with the derivatives of the new `h` with respect to the old `h` and
+    /// to `dz` (`(h₁, ∂h₁/∂h, ∂h₁/∂dz)`): on a step without a zero crossing
+    /// `∂h₁/∂h = e^{−c·x}`, `∂h₁/∂x = (a − c·h)·e^{−c·x}`; across a crossing at `x₀`
+    /// (`∂x₀/∂h = −1/(a − c·h)`) the second part's `∂/∂x = a·e^{−c₂(x − x₀)}` carries both.
+    /// At `dz = 0` the derivative is that of a rising step.
+    #[inline]
+    pub fn step_grad(&self, h: f64, dz: f64) -> (f64, f64, f64) {
+        let s = if dz < 0.0 { -1.0 } else { 1.0 };
+        let a = 1.0 + self.a0 * s;
+        if dz == 0.0 {
+            let sh = if h != 0.0 { h.signum() } else { 1.0 };
+            return (h, 1.0, a - (self.gamma * sh + self.beta) * h);
+        }
+        let sh = if h != 0.0 { h.signum() } else { (a * dz).signum() };
+        let c = self.gamma * sh + self.beta * s;
+        let go = |h0: f64, c: f64, x: f64| -> (f64, f64, f64) {
+            let cx = c * x;
+            let f = if cx.abs() < 1e-9 { x * (1.0 - 0.5 * cx) } else { -(-cx).exp_m1() / c };
+            let e = (-cx).exp();
+            (h0 + (a - c * h0) * f, e, (a - c * h0) * e)
+        };
+        let plain = go(h, c, dz);
+        if plain.0 * sh >= 0.0 || h == 0.0 {
+            return plain;
+        }
+        let (x0, dx0_dh) = if (c * h).abs() < 1e-12 * a.abs() {
+            (-h / a, -1.0 / a)
+        } else {
+            let ratio = a / (a - c * h);
+            if ratio <= 0.0 {
+                return plain;
+            }
+            (-ratio.ln() / c, -1.0 / (a - c * h))
+        };
+        if !(x0.is_finite() && x0 * dz >= 0.0 && x0.abs() <= dz.abs()) {
+            return plain;
+        }
+        let c2 = -self.gamma * sh + self.beta * s;
+        let (h1, _, dx) = go(0.0, c2, dz - x0);
+        (h1, -dx * dx0_dh, dx)
+    }
+
     /// The steady-state loop of a periodic `z` (one period): `h` over the last of
     /// `1 + warmup` passes, starting at `h = 0`, `z[−1] = z[N−1]`.
     pub fn periodic(&self, z: &[f64], warmup: usize) -> Vec<f64> {
@@ -126,6 +168,26 @@ mod tests {
             prev = z;
         }
         assert!((he - hx).abs() < 1e-3, "{he} {hx}");
+    }
+
+    #[test]
+    fn mimo_step_gradient_matches_finite_differences() {
+        let shapes = [Shape { a0: 0.2, gamma: 0.7, beta: 1.1 }, Shape::symmetric(0.5), Shape { a0: -0.3, gamma: -0.2, beta: 0.9 }];
+        for sh in shapes {
+            for &(h, dz) in &[(0.3, 0.2), (0.3, -0.9), (-0.4, 1.5), (0.05, -0.3), (-0.2, 0.01), (0.6, -2.0), (0.0, 0.4), (0.2, 1e-12)] {
+                let (h1, dh, ddz) = sh.step_grad(h, dz);
+                assert!((h1 - sh.step(h, dz)).abs() < 1e-14, "{h1}");
+                let e = 1e-7;
+                let fdh = (sh.step(h + e, dz) - sh.step(h - e, dz)) / (2.0 * e);
+                let fdz = (sh.step(h, dz + e) - sh.step(h, dz - e)) / (2.0 * e);
+                if h != 0.0 {
+                    assert!((fdh - dh).abs() < 1e-5 * (1.0 + dh.abs()), "{sh:?} {h} {dz}: dh {dh} vs {fdh}");
+                }
+                if dz.abs() > 1e-6 {
+                    assert!((fdz - ddz).abs() < 1e-5 * (1.0 + ddz.abs()), "{sh:?} {h} {dz}: ddz {ddz} vs {fdz}");
+                }
+            }
+        }
     }
 
     #[test]

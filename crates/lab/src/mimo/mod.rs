@@ -26,6 +26,7 @@
 //! domain once per shape and then taken to the lines.
 
 pub mod bla;
+pub mod feedback;
 pub mod fit;
 pub mod hysteresis;
 pub mod linear;

@@ -8,6 +8,10 @@
 //! x[k+1]   = A x[k] + B u[k] + E w[k]
 //! y[k]     = C x[k] + D u[k] + F w[k]
 //! ```
+//! A channel may instead close the loop ([`Source::Feedback`]): its input is a state of `x`
+//! itself and it gives `w_j = h_j(z_j) − z_j` (the loop's nonlinear part), an LFR whose
+//! nonlinearity is a Bouc–Wen restoring force on a mode ([`super::feedback`]).
+//!
 //! Without a branch it is the linear model `(A, B, C, D)`. A channel on an input is the
 //! Hammerstein form (`u → h(u)` through its own input matrix); a channel on a modal
 //! coordinate (the first state of a mode's block) puts a hysteretic term on that mode's
@@ -30,6 +34,10 @@ pub enum Source {
     Input(usize),
     /// State `i` of the linear state `x_l`.
     State(usize),
+    /// State `i` of the model's own state `x`: the loop is closed (an LFR), and the channel
+    /// gives the nonlinear part of its loop only, `w = h(z) − z` (`z = x_i/s`), so that at
+    /// small amplitude the model is `(A, B, C, D)`.
+    Feedback(usize),
 }
 
 /// One hysteresis channel.
@@ -144,7 +152,7 @@ impl MimoModel {
                 ch.shape.validate()?;
                 let ok = match ch.source {
                     Source::Input(i) => i < m,
-                    Source::State(i) => i < n,
+                    Source::State(i) | Source::Feedback(i) => i < n,
                 };
                 if !(ok && ch.scale.is_finite() && ch.scale > 0.0) {
                     return Err(MimoError::Parameter("a hysteresis channel's source or scale"));
@@ -207,11 +215,15 @@ impl MimoModel {
                     let src = match ch.source {
                         Source::Input(i) => uk[i],
                         Source::State(i) => xl[i],
+                        Source::Feedback(i) => x[i],
                     };
                     let z = src / ch.scale;
                     h[j] = ch.shape.step(h[j], z - zprev[j]);
                     zprev[j] = z;
-                    w[j] = h[j];
+                    w[j] = match ch.source {
+                        Source::Feedback(_) => h[j] - z,
+                        _ => h[j],
+                    };
                 }
                 if pass + 1 == passes {
                     for o in 0..p {
