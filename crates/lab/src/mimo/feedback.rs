@@ -94,11 +94,23 @@ pub struct FeedbackOptions {
     pub initial_scale: f64,
     /// Fit `ln s_b` (otherwise it stays at its initial value).
     pub fit_scale: bool,
+    /// A hysteresis channel on each input (the piezo's own hysteresis, Hammerstein):
+    /// `u_eff = u + κ_c (s_c h(u/s_c) − u)` drives the modes through `B`.
+    pub input_channels: bool,
+    /// Initial `s_c` as a multiple of the input's RMS on the data.
+    pub input_scale: f64,
 }
 
 impl Default for FeedbackOptions {
     fn default() -> Self {
-        Self { iterations: 20, shape: Shape::symmetric(0.5), initial_scale: 2.0, fit_scale: true }
+        Self {
+            iterations: 20,
+            shape: Shape::symmetric(0.5),
+            initial_scale: 2.0,
+            fit_scale: true,
+            input_channels: true,
+            input_scale: 2.0,
+        }
     }
 }
 
@@ -175,7 +187,8 @@ fn unpack(template: &[ModeParams], th: &[f64]) -> Vec<ModeParams> {
 }
 
 /// One mode simulated over the warm-up and the scored period: its states over the scored
-/// period and, when asked, their sensitivities to the mode's parameters.
+/// period and, when asked, their sensitivities to the mode's own parameters, then to the
+/// extra forcings.
 struct ModeRun {
     /// `[state][k]`.
     x: [Vec<f64>; 2],
@@ -183,83 +196,126 @@ struct ModeRun {
     dx: Vec<[Vec<f64>; 2]>,
 }
 
-/// Runs one mode on its drive `bu` (`B_b u`, `[state][k]`).
-fn run_mode(mp: &ModeParams, bu: &[Vec<f64>; 2], shape: &Shape, grad: bool) -> Option<ModeRun> {
-    let len = bu[0].len();
-    let np = if grad { mp.count() } else { 0 };
+/// A forcing of a tangent: `coef[i]·sig[k]` into state `i` (warm-up and scored period).
+struct Forcing<'a> {
+    coef: [f64; 2],
+    sig: &'a [f64],
+}
+
+/// Runs one mode on its drive `bu` (`B_b u`, `[state][k]` over the warm-up and the scored
+/// period, `2N`), with the sensitivities to its own parameters (when `grad`) and to `extra`.
+fn run_mode(mp: &ModeParams, bu: &[Vec<f64>; 2], shape: &Shape, grad: bool, extra: &[Forcing]) -> Option<ModeRun> {
+    let len = bu[0].len() / 2;
+    let own = if grad { mp.count() } else { 0 };
+    let nt = own + extra.len();
+    let two = mp.size() == 2;
     let mut out = ModeRun {
-        x: [vec![0.0; len], if mp.size() == 2 { vec![0.0; len] } else { Vec::new() }],
-        dx: (0..np).map(|_| [vec![0.0; len], if mp.size() == 2 { vec![0.0; len] } else { Vec::new() }]).collect(),
+        x: [vec![0.0; len], if two { vec![0.0; len] } else { Vec::new() }],
+        dx: (0..nt).map(|_| [vec![0.0; len], if two { vec![0.0; len] } else { Vec::new() }]).collect(),
     };
     match *mp {
         ModeParams::Real(l) => {
-            let (mut x, mut dx) = (0.0, 0.0);
-            for pass in 0..2 {
-                for k in 0..len {
-                    if pass == 1 {
-                        out.x[0][k] = x;
-                        if grad {
-                            out.dx[0][0][k] = dx;
-                        }
+            let mut x = 0.0;
+            let mut t = vec![0.0; nt];
+            for k in 0..2 * len {
+                if k >= len {
+                    out.x[0][k - len] = x;
+                    for (j, tj) in t.iter().enumerate() {
+                        out.dx[j][0][k - len] = *tj;
                     }
-                    dx = l * dx + x;
-                    x = l * x + bu[0][k];
                 }
+                for (j, tj) in t.iter_mut().enumerate() {
+                    let f = if j < own { x } else { extra[j - own].coef[0] * extra[j - own].sig[k] };
+                    *tj = l * *tj + f;
+                }
+                x = l * x + bu[0][k];
             }
             x.is_finite().then_some(out)
         }
         ModeParams::Pair { sigma, omega, e, s } => {
             let (mut x0, mut x1, mut hv, mut vprev) = (0.0f64, 0.0f64, 0.0f64, 0.0f64);
             // Tangent per parameter: (dx0, dx1, dhv, dvprev).
-            let mut t = [[0.0f64; 4]; 5];
+            let mut t = vec![[0.0f64; 4]; nt];
             let inv_s = 1.0 / s;
-            for pass in 0..2 {
-                for k in 0..len {
-                    let v = x0 * inv_s;
-                    let (hn, a_k, b_k) = shape.step_grad(hv, v - vprev);
-                    let w = hn - v;
-                    if pass == 1 {
-                        out.x[0][k] = x0;
-                        out.x[1][k] = x1;
+            for k in 0..2 * len {
+                let v = x0 * inv_s;
+                let (hn, a_k, b_k) = shape.step_grad(hv, v - vprev);
+                let w = hn - v;
+                let scored = k >= len;
+                if scored {
+                    out.x[0][k - len] = x0;
+                    out.x[1][k - len] = x1;
+                }
+                for (j, tj) in t.iter_mut().enumerate() {
+                    let [d0, d1, dh, dvp] = *tj;
+                    if scored {
+                        out.dx[j][0][k - len] = d0;
+                        out.dx[j][1][k - len] = d1;
                     }
-                    if grad {
-                        for (j, tj) in t.iter_mut().enumerate() {
-                            let [d0, d1, dh, dvp] = *tj;
-                            if pass == 1 {
-                                out.dx[j][0][k] = d0;
-                                out.dx[j][1][k] = d1;
-                            }
-                            let dv = d0 * inv_s - if j == 4 { v } else { 0.0 };
-                            let dhn = a_k * dh + b_k * (dv - dvp);
-                            let dw = dhn - dv;
-                            let (f0, f1) = match j {
-                                0 => (x0, x1),
-                                1 => (x1, -x0),
-                                2 => (w, 0.0),
-                                3 => (0.0, w),
-                                _ => (0.0, 0.0),
-                            };
-                            *tj = [
-                                sigma * d0 + omega * d1 + e[0] * dw + f0,
-                                -omega * d0 + sigma * d1 + e[1] * dw + f1,
-                                dhn,
-                                dv,
-                            ];
+                    let dv = d0 * inv_s - if j == 4 && j < own { v } else { 0.0 };
+                    let dhn = a_k * dh + b_k * (dv - dvp);
+                    let dw = dhn - dv;
+                    let (f0, f1) = if j < own {
+                        match j {
+                            0 => (x0, x1),
+                            1 => (x1, -x0),
+                            2 => (w, 0.0),
+                            3 => (0.0, w),
+                            _ => (0.0, 0.0),
                         }
-                    }
-                    let n0 = sigma * x0 + omega * x1 + bu[0][k] + e[0] * w;
-                    let n1 = -omega * x0 + sigma * x1 + bu[1][k] + e[1] * w;
-                    x0 = n0;
-                    x1 = n1;
-                    hv = hn;
-                    vprev = v;
+                    } else {
+                        let fx = &extra[j - own];
+                        (fx.coef[0] * fx.sig[k], fx.coef[1] * fx.sig[k])
+                    };
+                    *tj = [
+                        sigma * d0 + omega * d1 + e[0] * dw + f0,
+                        -omega * d0 + sigma * d1 + e[1] * dw + f1,
+                        dhn,
+                        dv,
+                    ];
                 }
-                if !(x0.is_finite() && x1.is_finite()) {
-                    return None;
-                }
+                let n0 = sigma * x0 + omega * x1 + bu[0][k] + e[0] * w;
+                let n1 = -omega * x0 + sigma * x1 + bu[1][k] + e[1] * w;
+                x0 = n0;
+                x1 = n1;
+                hv = hn;
+                vprev = v;
             }
-            Some(out)
+            (x0.is_finite() && x1.is_finite()).then_some(out)
         }
+    }
+}
+
+/// One input's hysteresis (Hammerstein): `u_eff = u + κ (s·h(u/s) − u)`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct InputParams {
+    kappa: f64,
+    s: f64,
+}
+
+/// All parameters of the loop fit.
+#[derive(Clone, Debug, PartialEq)]
+struct Params {
+    modes: Vec<ModeParams>,
+    inputs: Vec<InputParams>,
+}
+
+impl Params {
+    fn pack(&self) -> Vec<f64> {
+        let mut th = pack(&self.modes);
+        for ip in &self.inputs {
+            th.extend([ip.kappa, ip.s.ln()]);
+        }
+        th
+    }
+    fn unpack(&self, th: &[f64]) -> Self {
+        let nm: usize = self.modes.iter().map(ModeParams::count).sum();
+        let modes = unpack(&self.modes, &th[..nm]);
+        let inputs = th[nm..].chunks(2).map(|c| InputParams { kappa: c[0], s: c[1].exp() }).collect();
+        Self { modes, inputs }
+    }
+    fn mode_count(&self) -> usize {
+        self.modes.iter().map(ModeParams::count).sum()
     }
 }
 
@@ -281,22 +337,63 @@ struct Pass {
     runs: Vec<ModeRun>,
 }
 
+/// The input channels over the warm-up and the scored period (`2N`): `u_eff`, and per input
+/// `w = s·h(u/s) − u` and `∂w/∂ln s`.
+fn input_signals(u: &[f64], m: usize, len: usize, inputs: &[InputParams], shape: &Shape) -> [Vec<Vec<f64>>; 3] {
+    let mut ueff = Vec::with_capacity(m);
+    let mut ws = Vec::with_capacity(m);
+    let mut dws = Vec::with_capacity(m);
+    for c in 0..m {
+        let uc = &u[c * len..(c + 1) * len];
+        let mut ue: Vec<f64> = uc.iter().chain(uc).copied().collect();
+        if let Some(ip) = inputs.get(c) {
+            let (mut h, mut dh, mut vprev, mut dvprev) = (0.0, 0.0, 0.0, 0.0);
+            let mut w = vec![0.0; 2 * len];
+            let mut dw = vec![0.0; 2 * len];
+            for k in 0..2 * len {
+                let x = ue[k];
+                let v = x / ip.s;
+                let (hn, a_k, b_k) = shape.step_grad(h, v - vprev);
+                let dv = -v;
+                let dhn = a_k * dh + b_k * (dv - dvprev);
+                w[k] = ip.s * hn - x;
+                dw[k] = ip.s * (hn + dhn);
+                h = hn;
+                dh = dhn;
+                vprev = v;
+                dvprev = dv;
+            }
+            for (a, b) in ue.iter_mut().zip(&w) {
+                *a += ip.kappa * b;
+            }
+            ws.push(w);
+            dws.push(dw);
+        }
+        ueff.push(ue);
+    }
+    [ueff, ws, dws]
+}
+
 impl Problem<'_> {
-    fn pass(&self, ms: &[ModeParams], r: usize, grad: bool) -> Option<Pass> {
+    fn pass(&self, pr: &Params, r: usize, grad: bool) -> Option<Pass> {
         let (m, len) = (self.data.inputs, self.data.samples);
+        let ms = &pr.modes;
         let n: usize = ms.iter().map(ModeParams::size).sum();
         let u = &self.data.u[r];
+        let [ueff, ws, dws] = input_signals(u, m, len, &pr.inputs, &self.shape);
+        let kdws: Vec<Vec<f64>> =
+            dws.iter().zip(&pr.inputs).map(|(d, ip)| d.iter().map(|v| ip.kappa * v).collect()).collect();
         let mut phi = DMatrix::<f64>::zeros(len, n + m);
         let mut runs = Vec::with_capacity(ms.len());
         let mut at = 0;
         for mp in ms {
             let sz = mp.size();
             let drive = |i: usize| -> Vec<f64> {
-                let mut d = vec![0.0; len];
-                for c in 0..m {
+                let mut d = vec![0.0; 2 * len];
+                for (c, ue) in ueff.iter().enumerate() {
                     let bic = self.b[(i, c)];
                     if bic != 0.0 {
-                        for (dk, uk) in d.iter_mut().zip(&u[c * len..(c + 1) * len]) {
+                        for (dk, uk) in d.iter_mut().zip(ue) {
                             *dk += bic * uk;
                         }
                     }
@@ -304,7 +401,15 @@ impl Problem<'_> {
                 d
             };
             let bu = [drive(at), if sz == 2 { drive(at + 1) } else { Vec::new() }];
-            let run = run_mode(mp, &bu, &self.shape, grad)?;
+            let mut extra = Vec::new();
+            if grad {
+                for c in 0..pr.inputs.len() {
+                    let coef = [self.b[(at, c)], if sz == 2 { self.b[(at + 1, c)] } else { 0.0 }];
+                    extra.push(Forcing { coef, sig: &ws[c] });
+                    extra.push(Forcing { coef, sig: &kdws[c] });
+                }
+            }
+            let run = run_mode(mp, &bu, &self.shape, grad, &extra)?;
             for i in 0..sz {
                 phi.column_mut(at + i).copy_from_slice(&run.x[i]);
             }
@@ -319,19 +424,20 @@ impl Problem<'_> {
 
     /// `C, D` by weighted least squares, the cost and the passes (`None`: a simulation
     /// diverged).
-    fn evaluate(&self, ms: &[ModeParams]) -> Result<Option<Evaluated>, MimoError> {
+    fn evaluate(&self, pr: &Params) -> Result<Option<Evaluated>, MimoError> {
         let d = self.data;
         let p = d.outputs;
         let len = d.samples;
-        let passes: Option<Vec<Pass>> = (0..d.u.len()).into_par_iter().map(|r| self.pass(ms, r, false)).collect();
+        let passes: Option<Vec<Pass>> = (0..d.u.len()).into_par_iter().map(|r| self.pass(pr, r, false)).collect();
         let Some(passes) = passes else { return Ok(None) };
         let k = passes[0].phi.ncols();
         let mut g = DMatrix::<f64>::zeros(k, k);
         let mut rhs = DMatrix::<f64>::zeros(k, p);
         for (r, ps) in passes.iter().enumerate() {
             let y = DMatrix::from_column_slice(len, p, &d.y[r]);
-            g += ps.phi.tr_mul(&ps.phi) * d.weight[r];
-            rhs += ps.phi.tr_mul(&y) * d.weight[r];
+            let pt = ps.phi.transpose() * d.weight[r];
+            g += &pt * &ps.phi;
+            rhs += &pt * y;
         }
         let theta = solve_spd(g.clone(), &rhs).ok_or(MimoError::Numerical("C, D least squares (time domain)"))?;
         let cost: f64 = passes
@@ -348,31 +454,33 @@ impl Problem<'_> {
         Ok(Some(Evaluated { theta, gram: g, cost }))
     }
 
-    /// The reduced normal equations at `ms` with `(C, D)` = `theta` (rows: states, inputs;
+    /// The reduced normal equations at `pr` with `(C, D)` = `ev.theta` (rows: states, inputs;
     /// columns: outputs).
     fn normal_equations(
         &self,
-        ms: &[ModeParams],
+        pr: &Params,
         ev: &Evaluated,
     ) -> Result<Option<(DMatrix<f64>, DVector<f64>)>, MimoError> {
         let d = self.data;
         let (p, len) = (d.outputs, d.samples);
-        let npar: usize = ms.iter().map(ModeParams::count).sum();
+        let nmode = pr.mode_count();
+        let npar = nmode + 2 * pr.inputs.len();
         let kk = ev.theta.nrows();
         let parts: Option<Vec<(DMatrix<f64>, Vec<DMatrix<f64>>, DVector<f64>)>> = (0..d.u.len())
             .into_par_iter()
             .map(|r| {
-                let ps = self.pass(ms, r, true)?;
+                let ps = self.pass(pr, r, true)?;
                 let sw = d.weight[r].sqrt();
                 let y = DMatrix::from_column_slice(len, p, &d.y[r]);
                 let res = (y - &ps.phi * &ev.theta) * sw;
                 // J: (p·N) × npar, rows o·N + k.
                 let mut jac = DMatrix::<f64>::zeros(p * len, npar);
                 let (mut col, mut at) = (0, 0);
-                for (mp, run) in ms.iter().zip(&ps.runs) {
+                for (mp, run) in pr.modes.iter().zip(&ps.runs) {
                     let sz = mp.size();
-                    for dxj in &run.dx {
-                        let mut cj = jac.column_mut(col);
+                    for (j, dxj) in run.dx.iter().enumerate() {
+                        let target = if j < mp.count() { col + j } else { nmode + j - mp.count() };
+                        let mut cj = jac.column_mut(target);
                         for o in 0..p {
                             for i in 0..sz {
                                 let c = ev.theta[(at + i, o)] * sw;
@@ -381,16 +489,17 @@ impl Problem<'_> {
                                 }
                             }
                         }
-                        col += 1;
                     }
+                    col += mp.count();
                     at += sz;
                 }
-                let jj = jac.tr_mul(&jac);
-                let phi_w = &ps.phi * sw;
-                let mo: Vec<DMatrix<f64>> =
-                    (0..p).map(|o| phi_w.tr_mul(&jac.rows(o * len, len))).collect();
+                // `transpose() *` is the blocked product (matrixmultiply), `tr_mul` is not.
+                let jt = jac.transpose();
+                let jj = &jt * &jac;
+                let phi_t = ps.phi.transpose() * sw;
+                let mo: Vec<DMatrix<f64>> = (0..p).map(|o| &phi_t * jac.rows(o * len, len)).collect();
                 let res_flat = DVector::from_column_slice(res.as_slice());
-                let jr = jac.tr_mul(&res_flat);
+                let jr = &jt * &res_flat;
                 Some((jj, mo, jr))
             })
             .collect();
@@ -407,7 +516,7 @@ impl Problem<'_> {
         }
         for m in &mo {
             let gm = solve_spd(ev.gram.clone(), m).ok_or(MimoError::Numerical("variable projection"))?;
-            jj -= m.tr_mul(&gm);
+            jj -= m.transpose() * gm;
         }
         for (i, &f) in self.free.iter().enumerate() {
             if !f {
@@ -446,48 +555,60 @@ pub fn fit_feedback(
     if !(opts.initial_scale.is_finite() && opts.initial_scale > 0.0) {
         return Err(MimoError::Parameter("initial scale of the feedback channels"));
     }
+    if !(opts.input_scale.is_finite() && opts.input_scale > 0.0) {
+        return Err(MimoError::Parameter("initial scale of the input channels"));
+    }
     let ss = lin.linear_part();
-    let n = ss.order();
-    // Start: the linear model with e = 0 and s from the states' RMS.
-    let mut ms: Vec<ModeParams> = ss
-        .modes
-        .iter()
-        .map(|md| match *md {
-            Mode::Real(l) => ModeParams::Real(l),
-            Mode::Pair { sigma, omega } => ModeParams::Pair { sigma, omega, e: [0.0, 0.0], s: 1.0 },
-        })
-        .collect();
+    let (n, m) = (ss.order(), data.inputs);
+    // Start: the linear model with e = 0, κ = 0 and the scales from the RMS of the states and
+    // inputs.
+    let mut pr = Params {
+        modes: ss
+            .modes
+            .iter()
+            .map(|md| match *md {
+                Mode::Real(l) => ModeParams::Real(l),
+                Mode::Pair { sigma, omega } => ModeParams::Pair { sigma, omega, e: [0.0, 0.0], s: 1.0 },
+            })
+            .collect(),
+        inputs: Vec::new(),
+    };
     let mut prob = Problem { data, b: &ss.b, shape: opts.shape, free: vec![] };
     let sq: Option<Vec<Vec<f64>>> = (0..data.u.len())
         .into_par_iter()
-        .map(|r| prob.pass(&ms, r, false).map(|p| (0..n).map(|i| p.phi.column(i).norm_squared()).collect()))
+        .map(|r| prob.pass(&pr, r, false).map(|p| (0..n + m).map(|i| p.phi.column(i).norm_squared()).collect()))
         .collect();
     let sq = sq.ok_or(MimoError::Numerical("simulation of the linear model"))?;
-    let rms: Vec<f64> = (0..n)
+    let rms: Vec<f64> = (0..n + m)
         .map(|i| (sq.iter().map(|v| v[i]).sum::<f64>() / (data.u.len() * data.samples) as f64).sqrt())
         .collect();
     let mut at = 0;
-    for mp in ms.iter_mut() {
+    for mp in pr.modes.iter_mut() {
         if let ModeParams::Pair { s, .. } = mp {
             *s = (opts.initial_scale * rms[at]).max(1e-300);
         }
         at += mp.size();
     }
-    prob.free = ms
+    if opts.input_channels {
+        pr.inputs = (0..m).map(|c| InputParams { kappa: 0.0, s: (opts.input_scale * rms[n + c]).max(1e-300) }).collect();
+    }
+    prob.free = pr
+        .modes
         .iter()
         .flat_map(|mp| match mp {
             ModeParams::Real(_) => vec![true],
             ModeParams::Pair { .. } => vec![true, true, true, true, opts.fit_scale],
         })
+        .chain(pr.inputs.iter().flat_map(|_| [true, opts.fit_scale]))
         .collect();
-    let mut ev = prob.evaluate(&ms)?.ok_or(MimoError::Numerical("simulation of the linear model"))?;
+    let mut ev = prob.evaluate(&pr)?.ok_or(MimoError::Numerical("simulation of the linear model"))?;
     let cost0 = ev.cost;
-    let mut th = pack(&ms);
+    let mut th = pr.pack();
     let npar = th.len();
     let mut mu = 1e-3;
     let mut done = 0;
     for it in 0..opts.iterations {
-        let Some((jj, jr)) = prob.normal_equations(&ms, &ev)? else {
+        let Some((jj, jr)) = prob.normal_equations(&pr, &ev)? else {
             return Err(MimoError::Numerical("sensitivities of the feedback model"));
         };
         done = it + 1;
@@ -503,13 +624,13 @@ pub fn fit_feedback(
                 continue;
             };
             let trial: Vec<f64> = th.iter().zip(step.iter()).map(|(a, b)| a + b).collect();
-            let cand = unpack(&ms, &trial);
-            if cand.iter().all(|m| m.radius() < 0.9999) && trial.iter().all(|v| v.is_finite()) {
+            let cand = pr.unpack(&trial);
+            if cand.modes.iter().all(|m| m.radius() < 0.9999) && trial.iter().all(|v| v.is_finite()) {
                 if let Some(e2) = prob.evaluate(&cand)? {
                     if e2.cost < ev.cost {
                         let rel = (ev.cost - e2.cost) / ev.cost;
                         th = trial;
-                        ms = cand;
+                        pr = cand;
                         ev = e2;
                         mu = (mu / 3.0).max(1e-9);
                         improved = rel > 1e-6;
@@ -524,38 +645,51 @@ pub fn fit_feedback(
             break;
         }
     }
-    // The model.
-    let m = data.inputs;
-    let p = data.outputs;
+    let model = assemble(lin, &pr, &ev.theta, &opts.shape)?;
+    Ok((model, FeedbackReport { cost: (cost0, ev.cost), iterations: done }))
+}
+
+/// The [`MimoModel`] of fitted parameters: `B·diag(1 − κ)` and an input channel with the
+/// column `κ_c s_c B_c` of `E` per input, a feedback channel per pair of poles.
+fn assemble(lin: &MimoModel, pr: &Params, theta: &DMatrix<f64>, shape: &Shape) -> Result<MimoModel, MimoError> {
+    let (n, m, p) = (lin.order(), lin.inputs, lin.outputs);
     let mut model = lin.clone();
-    model.modes = ms
+    model.modes = pr
+        .modes
         .iter()
         .map(|mp| match *mp {
             ModeParams::Real(l) => Mode::Real(l),
             ModeParams::Pair { sigma, omega, .. } => Mode::Pair { sigma, omega },
         })
         .collect();
-    model.c = (0..p).flat_map(|o| (0..n).map(move |i| (o, i))).map(|(o, i)| ev.theta[(i, o)]).collect();
-    model.d = (0..p).flat_map(|o| (0..m).map(move |c| (o, c))).map(|(o, c)| ev.theta[(n + c, o)]).collect();
+    model.c = (0..p).flat_map(|o| (0..n).map(move |i| (o, i))).map(|(o, i)| theta[(i, o)]).collect();
+    model.d = (0..p).flat_map(|o| (0..m).map(move |c| (o, c))).map(|(o, c)| theta[(n + c, o)]).collect();
     let mut channels = Vec::new();
-    let mut cols: Vec<(usize, [f64; 2])> = Vec::new();
+    // Per channel, its column of E.
+    let mut cols: Vec<Vec<f64>> = Vec::new();
+    for (c, ip) in pr.inputs.iter().enumerate() {
+        channels.push(Channel { source: Source::Input(c), scale: ip.s, shape: *shape });
+        cols.push((0..n).map(|i| ip.kappa * ip.s * lin.b[i * m + c]).collect());
+        for i in 0..n {
+            model.b[i * m + c] = lin.b[i * m + c] * (1.0 - ip.kappa);
+        }
+    }
     let mut at = 0;
-    for mp in &ms {
+    for mp in &pr.modes {
         if let ModeParams::Pair { e, s, .. } = *mp {
-            channels.push(Channel { source: Source::Feedback(at), scale: s, shape: opts.shape });
-            cols.push((at, e));
+            channels.push(Channel { source: Source::Feedback(at), scale: s, shape: *shape });
+            let mut col = vec![0.0; n];
+            col[at] = e[0];
+            col[at + 1] = e[1];
+            cols.push(col);
         }
         at += mp.size();
     }
     let q = channels.len();
-    let mut e = vec![0.0; n * q];
-    for (j, &(i, ej)) in cols.iter().enumerate() {
-        e[i * q + j] = ej[0];
-        e[(i + 1) * q + j] = ej[1];
-    }
+    let e = (0..n).flat_map(|i| cols.iter().map(move |col| col[i])).collect();
     model.branch = Some(Branch { channels, b0: lin.b.clone(), e, f: vec![0.0; p * q] });
     model.validate()?;
-    Ok((model, FeedbackReport { cost: (cost0, ev.cost), iterations: done }))
+    Ok(model)
 }
 
 #[cfg(test)]
@@ -593,12 +727,15 @@ mod tests {
         (lin, Periods { inputs: 2, outputs: 2, samples: len, u, y, weight: vec![1.0, 0.5, 1.0] })
     }
 
-    fn params() -> Vec<ModeParams> {
-        vec![
-            ModeParams::Pair { sigma: 0.95 * 0.6f64.cos(), omega: 0.95 * 0.6f64.sin(), e: [0.3, -0.2], s: 1.5 },
-            ModeParams::Real(0.5),
-            ModeParams::Pair { sigma: 0.97 * 1.3f64.cos(), omega: 0.97 * 1.3f64.sin(), e: [-0.02, 0.05], s: 0.8 },
-        ]
+    fn params() -> Params {
+        Params {
+            modes: vec![
+                ModeParams::Pair { sigma: 0.95 * 0.6f64.cos(), omega: 0.95 * 0.6f64.sin(), e: [0.3, -0.2], s: 1.5 },
+                ModeParams::Real(0.5),
+                ModeParams::Pair { sigma: 0.97 * 1.3f64.cos(), omega: 0.97 * 1.3f64.sin(), e: [-0.02, 0.05], s: 0.8 },
+            ],
+            inputs: vec![InputParams { kappa: 0.2, s: 1.2 }, InputParams { kappa: -0.1, s: 0.7 }],
+        }
     }
 
     #[test]
@@ -607,27 +744,35 @@ mod tests {
         let ss = lin.linear_part();
         let shape = Shape { a0: 0.1, gamma: 0.6, beta: 0.4 };
         let prob = Problem { data: &data, b: &ss.b, shape, free: vec![] };
-        let ms = params();
-        let base = prob.pass(&ms, 1, true).expect("pass");
-        let th = pack(&ms);
-        let mut j = 0;
-        for (bi, mp) in ms.iter().enumerate() {
-            for pj in 0..mp.count() {
-                let h = 1e-6;
-                let mut tp = th.clone();
-                tp[j] += h;
-                let mut tm = th.clone();
-                tm[j] -= h;
-                let a = prob.pass(&unpack(&ms, &tp), 1, false).expect("pass");
-                let b = prob.pass(&unpack(&ms, &tm), 1, false).expect("pass");
+        let pr = params();
+        let base = prob.pass(&pr, 1, true).expect("pass");
+        let th = pr.pack();
+        let nmode = pr.mode_count();
+        for j in 0..th.len() {
+            let h = 1e-6;
+            let mut tp = th.clone();
+            tp[j] += h;
+            let mut tm = th.clone();
+            tm[j] -= h;
+            let a = prob.pass(&pr.unpack(&tp), 1, false).expect("pass");
+            let b = prob.pass(&pr.unpack(&tm), 1, false).expect("pass");
+            let mut off = 0;
+            for (bi, mp) in pr.modes.iter().enumerate() {
+                let an_idx = if j >= nmode {
+                    Some(mp.count() + j - nmode)
+                } else if (off..off + mp.count()).contains(&j) {
+                    Some(j - off)
+                } else {
+                    None
+                };
                 for st in 0..mp.size() {
                     for k in (0..data.samples).step_by(17) {
                         let fd = (a.runs[bi].x[st][k] - b.runs[bi].x[st][k]) / (2.0 * h);
-                        let an = base.runs[bi].dx[pj][st][k];
-                        assert!((fd - an).abs() < 1e-5 * (1.0 + an.abs()), "mode {bi} param {pj} state {st} k {k}: {an} vs {fd}");
+                        let an = an_idx.map_or(0.0, |i| base.runs[bi].dx[i][st][k]);
+                        assert!((fd - an).abs() < 1e-5 * (1.0 + an.abs()), "θ {j} mode {bi} state {st} k {k}: {an} vs {fd}");
                     }
                 }
-                j += 1;
+                off += mp.count();
             }
         }
     }
@@ -637,52 +782,55 @@ mod tests {
         let (lin, mut data) = toy();
         let ss = lin.linear_part();
         let shape = Shape::symmetric(0.5);
-        // The scales the fit starts from: twice the RMS of the linear model's states.
-        let mut ms = params();
+        // The truth: the scales the fit starts from (twice the RMS of the linear model's
+        // states and of the inputs), known e and κ.
+        let mut pr = params();
         let prob = Problem { data: &data, b: &ss.b, shape, free: vec![] };
-        let lin_ms: Vec<ModeParams> = ms
-            .iter()
-            .map(|mp| match *mp {
-                ModeParams::Pair { sigma, omega, s, .. } => ModeParams::Pair { sigma, omega, e: [0.0; 2], s },
-                r => r,
-            })
-            .collect();
+        let lin_pr = Params {
+            modes: pr
+                .modes
+                .iter()
+                .map(|mp| match *mp {
+                    ModeParams::Pair { sigma, omega, s, .. } => ModeParams::Pair { sigma, omega, e: [0.0; 2], s },
+                    r => r,
+                })
+                .collect(),
+            inputs: vec![],
+        };
         let rms = |i: usize| {
-            let ss: f64 = (0..3).map(|r| prob.pass(&lin_ms, r, false).expect("pass").phi.column(i).norm_squared()).sum();
+            let ss: f64 =
+                (0..3).map(|r| prob.pass(&lin_pr, r, false).expect("pass").phi.column(i).norm_squared()).sum();
             (ss / (3 * data.samples) as f64).sqrt()
         };
         let scales = [2.0 * rms(0), 2.0 * rms(3)];
-        for (mp, sc) in ms.iter_mut().filter(|m| m.size() == 2).zip(scales) {
+        for (mp, sc) in pr.modes.iter_mut().filter(|m| m.size() == 2).zip(scales) {
             if let ModeParams::Pair { s, .. } = mp {
                 *s = sc;
             }
         }
-        let mut truth = lin.clone();
-        let q = 2;
-        let mut e = vec![0.0; 5 * q];
-        let (ModeParams::Pair { e: e1, .. }, ModeParams::Pair { e: e2, .. }) = (ms[0], ms[2]) else { unreachable!() };
-        e[0] = e1[0];
-        e[q] = e1[1];
-        e[3 * q + 1] = e2[0];
-        e[4 * q + 1] = e2[1];
-        truth.branch = Some(Branch {
-            channels: vec![
-                Channel { source: Source::Feedback(0), scale: scales[0], shape },
-                Channel { source: Source::Feedback(3), scale: scales[1], shape },
-            ],
-            b0: truth.b.clone(),
-            e,
-            f: vec![0.0; 2 * q],
-        });
+        for (c, ip) in pr.inputs.iter_mut().enumerate() {
+            let ms: f64 = data.u.iter().map(|u| u[c * data.samples..(c + 1) * data.samples].iter().map(|v| v * v).sum::<f64>()).sum();
+            ip.s = 2.0 * (ms / (3 * data.samples) as f64).sqrt();
+        }
+        let mut theta = DMatrix::zeros(7, 2);
+        for o in 0..2 {
+            for i in 0..5 {
+                theta[(i, o)] = ss.c[(o, i)];
+            }
+            for c in 0..2 {
+                theta[(5 + c, o)] = ss.d[(o, c)];
+            }
+        }
+        let truth = assemble(&lin, &pr, &theta, &shape).expect("model");
         for r in 0..3 {
             data.y[r] = truth.simulate(&data.u[r], Warmup::Periods(1)).expect("simulation");
         }
         let prob = Problem { data: &data, b: &ss.b, shape, free: vec![] };
-        let ev = prob.evaluate(&ms).expect("evaluate").expect("finite");
+        let ev = prob.evaluate(&pr).expect("evaluate").expect("finite");
         let yy: f64 = data.y.iter().flatten().map(|v| v * v).sum();
         assert!(ev.cost < 1e-12 * yy, "the fit's simulation differs from MimoModel::simulate: {}", ev.cost);
         // From the linear model, the fit finds the loop again.
-        let opts = FeedbackOptions { iterations: 30, shape, initial_scale: 2.0, fit_scale: true };
+        let opts = FeedbackOptions { iterations: 40, shape, ..FeedbackOptions::default() };
         let (fitted, rep) = fit_feedback(&lin, &data, &opts, &|_, _| {}).expect("fit");
         assert!(rep.cost.1 < 1e-8 * rep.cost.0, "{rep:?}");
         let y = fitted.simulate(&data.u[0], Warmup::Periods(1)).expect("simulation");
