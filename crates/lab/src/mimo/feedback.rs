@@ -40,7 +40,7 @@
 use super::MimoError;
 use super::hysteresis::Shape;
 use super::linear::{Mode, solve_spd};
-use super::model::{Branch, Channel, MimoModel, Source};
+use super::model::{Branch, Channel, Envelope, MimoModel, Schedule, ScheduledMode, Source};
 use nalgebra::{DMatrix, DVector};
 use rayon::prelude::*;
 
@@ -99,6 +99,12 @@ pub struct FeedbackOptions {
     pub input_channels: bool,
     /// Initial `s_c` as a multiple of the input's RMS on the data.
     pub input_scale: f64,
+    /// The Bouc–Wen restoring force on each mode (otherwise `e_b = 0`).
+    pub mode_hysteresis: bool,
+    /// Each mode's stiffness scheduled by the inputs' envelope ([`Schedule`]).
+    pub schedule: bool,
+    /// The envelope's time constant, samples.
+    pub envelope_samples: f64,
 }
 
 impl Default for FeedbackOptions {
@@ -110,6 +116,9 @@ impl Default for FeedbackOptions {
             fit_scale: true,
             input_channels: true,
             input_scale: 2.0,
+            mode_hysteresis: true,
+            schedule: true,
+            envelope_samples: 64.0,
         }
     }
 }
@@ -128,7 +137,8 @@ pub struct FeedbackReport {
 #[derive(Clone, Copy, Debug, PartialEq)]
 enum ModeParams {
     Real(f64),
-    Pair { sigma: f64, omega: f64, e: [f64; 2], s: f64 },
+    /// `k`: the scheduled stiffness, `[ρ → state 0, ρ → state 1, ρ² → state 0, ρ² → state 1]`.
+    Pair { sigma: f64, omega: f64, e: [f64; 2], s: f64, k: [f64; 4] },
 }
 
 impl ModeParams {
@@ -142,7 +152,7 @@ impl ModeParams {
     fn count(&self) -> usize {
         match self {
             Self::Real(_) => 1,
-            Self::Pair { .. } => 5,
+            Self::Pair { .. } => 9,
         }
     }
     fn radius(&self) -> f64 {
@@ -158,7 +168,10 @@ fn pack(ms: &[ModeParams]) -> Vec<f64> {
     for m in ms {
         match *m {
             ModeParams::Real(l) => th.push(l),
-            ModeParams::Pair { sigma, omega, e, s } => th.extend([sigma, omega, e[0], e[1], s.ln()]),
+            ModeParams::Pair { sigma, omega, e, s, k } => {
+                th.extend([sigma, omega, e[0], e[1], s.ln()]);
+                th.extend(k);
+            }
         }
     }
     th
@@ -174,12 +187,13 @@ fn unpack(template: &[ModeParams], th: &[f64]) -> Vec<ModeParams> {
                 ModeParams::Real(th[i - 1])
             }
             ModeParams::Pair { .. } => {
-                i += 5;
+                i += 9;
                 ModeParams::Pair {
-                    sigma: th[i - 5],
-                    omega: th[i - 4],
-                    e: [th[i - 3], th[i - 2]],
-                    s: th[i - 1].exp(),
+                    sigma: th[i - 9],
+                    omega: th[i - 8],
+                    e: [th[i - 7], th[i - 6]],
+                    s: th[i - 5].exp(),
+                    k: [th[i - 4], th[i - 3], th[i - 2], th[i - 1]],
                 }
             }
         })
@@ -204,7 +218,14 @@ struct Forcing<'a> {
 
 /// Runs one mode on its drive `bu` (`B_b u`, `[state][k]` over the warm-up and the scored
 /// period, `2N`), with the sensitivities to its own parameters (when `grad`) and to `extra`.
-fn run_mode(mp: &ModeParams, bu: &[Vec<f64>; 2], shape: &Shape, grad: bool, extra: &[Forcing]) -> Option<ModeRun> {
+fn run_mode(
+    mp: &ModeParams,
+    bu: &[Vec<f64>; 2],
+    rho: &[f64],
+    shape: &Shape,
+    grad: bool,
+    extra: &[Forcing],
+) -> Option<ModeRun> {
     let len = bu[0].len() / 2;
     let own = if grad { mp.count() } else { 0 };
     let nt = own + extra.len();
@@ -232,7 +253,7 @@ fn run_mode(mp: &ModeParams, bu: &[Vec<f64>; 2], shape: &Shape, grad: bool, extr
             }
             x.is_finite().then_some(out)
         }
-        ModeParams::Pair { sigma, omega, e, s } => {
+        ModeParams::Pair { sigma, omega, e, s, k: kk } => {
             let (mut x0, mut x1, mut hv, mut vprev) = (0.0f64, 0.0f64, 0.0f64, 0.0f64);
             // Tangent per parameter: (dx0, dx1, dhv, dvprev).
             let mut t = vec![[0.0f64; 4]; nt];
@@ -241,6 +262,8 @@ fn run_mode(mp: &ModeParams, bu: &[Vec<f64>; 2], shape: &Shape, grad: bool, extr
                 let v = x0 * inv_s;
                 let (hn, a_k, b_k) = shape.step_grad(hv, v - vprev);
                 let w = hn - v;
+                let r = rho[k];
+                let (g0, g1) = (kk[0] * r + kk[2] * r * r, kk[1] * r + kk[3] * r * r);
                 let scored = k >= len;
                 if scored {
                     out.x[0][k - len] = x0;
@@ -261,6 +284,10 @@ fn run_mode(mp: &ModeParams, bu: &[Vec<f64>; 2], shape: &Shape, grad: bool, extr
                             1 => (x1, -x0),
                             2 => (w, 0.0),
                             3 => (0.0, w),
+                            5 => (r * x0, 0.0),
+                            6 => (0.0, r * x0),
+                            7 => (r * r * x0, 0.0),
+                            8 => (0.0, r * r * x0),
                             _ => (0.0, 0.0),
                         }
                     } else {
@@ -268,14 +295,14 @@ fn run_mode(mp: &ModeParams, bu: &[Vec<f64>; 2], shape: &Shape, grad: bool, extr
                         (fx.coef[0] * fx.sig[k], fx.coef[1] * fx.sig[k])
                     };
                     *tj = [
-                        sigma * d0 + omega * d1 + e[0] * dw + f0,
-                        -omega * d0 + sigma * d1 + e[1] * dw + f1,
+                        sigma * d0 + omega * d1 + e[0] * dw + g0 * d0 + f0,
+                        -omega * d0 + sigma * d1 + e[1] * dw + g1 * d0 + f1,
                         dhn,
                         dv,
                     ];
                 }
-                let n0 = sigma * x0 + omega * x1 + bu[0][k] + e[0] * w;
-                let n1 = -omega * x0 + sigma * x1 + bu[1][k] + e[1] * w;
+                let n0 = sigma * x0 + omega * x1 + bu[0][k] + e[0] * w + g0 * x0;
+                let n1 = -omega * x0 + sigma * x1 + bu[1][k] + e[1] * w + g1 * x0;
                 x0 = n0;
                 x1 = n1;
                 hv = hn;
@@ -327,6 +354,8 @@ struct Problem<'a> {
     shape: Shape,
     /// Which θ entries are fitted.
     free: Vec<bool>,
+    /// The scheduling signal.
+    envelope: Envelope,
 }
 
 /// One realisation's pass: regressors and, with a Jacobian, its columns.
@@ -381,6 +410,7 @@ impl Problem<'_> {
         let n: usize = ms.iter().map(ModeParams::size).sum();
         let u = &self.data.u[r];
         let [ueff, ws, dws] = input_signals(u, m, len, &pr.inputs, &self.shape);
+        let rho = self.envelope.rho(u, m, len);
         let kdws: Vec<Vec<f64>> =
             dws.iter().zip(&pr.inputs).map(|(d, ip)| d.iter().map(|v| ip.kappa * v).collect()).collect();
         let mut phi = DMatrix::<f64>::zeros(len, n + m);
@@ -409,7 +439,7 @@ impl Problem<'_> {
                     extra.push(Forcing { coef, sig: &kdws[c] });
                 }
             }
-            let run = run_mode(mp, &bu, &self.shape, grad, &extra)?;
+            let run = run_mode(mp, &bu, &rho, &self.shape, grad, &extra)?;
             for i in 0..sz {
                 phi.column_mut(at + i).copy_from_slice(&run.x[i]);
             }
@@ -568,12 +598,21 @@ pub fn fit_feedback(
             .iter()
             .map(|md| match *md {
                 Mode::Real(l) => ModeParams::Real(l),
-                Mode::Pair { sigma, omega } => ModeParams::Pair { sigma, omega, e: [0.0, 0.0], s: 1.0 },
+                Mode::Pair { sigma, omega } => ModeParams::Pair { sigma, omega, e: [0.0, 0.0], s: 1.0, k: [0.0; 4] },
             })
             .collect(),
         inputs: Vec::new(),
     };
-    let mut prob = Problem { data, b: &ss.b, shape: opts.shape, free: vec![] };
+    if !(opts.envelope_samples.is_finite() && opts.envelope_samples >= 0.0) {
+        return Err(MimoError::Parameter("the envelope's time constant"));
+    }
+    let mean_abs = data.u.iter().flatten().map(|v| v.abs()).sum::<f64>() / (data.u.len() * data.samples * m) as f64;
+    let envelope = Envelope {
+        pole: if opts.envelope_samples > 0.0 { (-1.0 / opts.envelope_samples).exp() } else { 0.0 },
+        scale: mean_abs.max(1e-300),
+    };
+    envelope.validate()?;
+    let mut prob = Problem { data, b: &ss.b, shape: opts.shape, free: vec![], envelope };
     let sq: Option<Vec<Vec<f64>>> = (0..data.u.len())
         .into_par_iter()
         .map(|r| prob.pass(&pr, r, false).map(|p| (0..n + m).map(|i| p.phi.column(i).norm_squared()).collect()))
@@ -597,7 +636,10 @@ pub fn fit_feedback(
         .iter()
         .flat_map(|mp| match mp {
             ModeParams::Real(_) => vec![true],
-            ModeParams::Pair { .. } => vec![true, true, true, true, opts.fit_scale],
+            ModeParams::Pair { .. } => {
+                let (h, k) = (opts.mode_hysteresis, opts.schedule);
+                vec![true, true, h, h, h && opts.fit_scale, k, k, k, k]
+            }
         })
         .chain(pr.inputs.iter().flat_map(|_| [true, opts.fit_scale]))
         .collect();
@@ -639,19 +681,32 @@ pub fn fit_feedback(
                 }
             }
             mu *= 4.0;
+            if std::env::var("FB_DEBUG").is_ok() {
+                eprintln!("  rejected, mu {mu:.2e}");
+            }
+        }
+        if std::env::var("FB_DEBUG").is_ok() {
+            eprintln!("  mu {mu:.2e}");
         }
         progress(done, ev.cost);
         if !improved {
             break;
         }
     }
-    let model = assemble(lin, &pr, &ev.theta, &opts.shape)?;
+    let model = assemble(lin, &pr, &ev.theta, &opts.shape, opts.mode_hysteresis, opts.schedule.then_some(envelope))?;
     Ok((model, FeedbackReport { cost: (cost0, ev.cost), iterations: done }))
 }
 
 /// The [`MimoModel`] of fitted parameters: `B·diag(1 − κ)` and an input channel with the
 /// column `κ_c s_c B_c` of `E` per input, a feedback channel per pair of poles.
-fn assemble(lin: &MimoModel, pr: &Params, theta: &DMatrix<f64>, shape: &Shape) -> Result<MimoModel, MimoError> {
+fn assemble(
+    lin: &MimoModel,
+    pr: &Params,
+    theta: &DMatrix<f64>,
+    shape: &Shape,
+    mode_hysteresis: bool,
+    envelope: Option<Envelope>,
+) -> Result<MimoModel, MimoError> {
     let (n, m, p) = (lin.order(), lin.inputs, lin.outputs);
     let mut model = lin.clone();
     model.modes = pr
@@ -675,19 +730,24 @@ fn assemble(lin: &MimoModel, pr: &Params, theta: &DMatrix<f64>, shape: &Shape) -
         }
     }
     let mut at = 0;
+    let mut scheduled = Vec::new();
     for mp in &pr.modes {
-        if let ModeParams::Pair { e, s, .. } = *mp {
-            channels.push(Channel { source: Source::Feedback(at), scale: s, shape: *shape });
-            let mut col = vec![0.0; n];
-            col[at] = e[0];
-            col[at + 1] = e[1];
-            cols.push(col);
+        if let ModeParams::Pair { e, s, k, .. } = *mp {
+            if mode_hysteresis {
+                channels.push(Channel { source: Source::Feedback(at), scale: s, shape: *shape });
+                let mut col = vec![0.0; n];
+                col[at] = e[0];
+                col[at + 1] = e[1];
+                cols.push(col);
+            }
+            scheduled.push(ScheduledMode { state: at, k });
         }
         at += mp.size();
     }
     let q = channels.len();
     let e = (0..n).flat_map(|i| cols.iter().map(move |col| col[i])).collect();
-    model.branch = Some(Branch { channels, b0: lin.b.clone(), e, f: vec![0.0; p * q] });
+    model.branch = (q > 0).then(|| Branch { channels, b0: lin.b.clone(), e, f: vec![0.0; p * q] });
+    model.schedule = envelope.map(|envelope| Schedule { envelope, modes: scheduled });
     model.validate()?;
     Ok(model)
 }
@@ -727,12 +787,18 @@ mod tests {
         (lin, Periods { inputs: 2, outputs: 2, samples: len, u, y, weight: vec![1.0, 0.5, 1.0] })
     }
 
+    /// The envelope the fit makes for `data` with the default options.
+    fn env(data: &Periods) -> Envelope {
+        let mean_abs = data.u.iter().flatten().map(|v| v.abs()).sum::<f64>() / (data.u.len() * data.u[0].len()) as f64;
+        Envelope { pole: (-1.0f64 / FeedbackOptions::default().envelope_samples).exp(), scale: mean_abs }
+    }
+
     fn params() -> Params {
         Params {
             modes: vec![
-                ModeParams::Pair { sigma: 0.95 * 0.6f64.cos(), omega: 0.95 * 0.6f64.sin(), e: [0.3, -0.2], s: 1.5 },
+                ModeParams::Pair { sigma: 0.95 * 0.6f64.cos(), omega: 0.95 * 0.6f64.sin(), e: [0.3, -0.2], s: 1.5, k: [0.01, -0.02, 0.005, 0.003] },
                 ModeParams::Real(0.5),
-                ModeParams::Pair { sigma: 0.97 * 1.3f64.cos(), omega: 0.97 * 1.3f64.sin(), e: [-0.02, 0.05], s: 0.8 },
+                ModeParams::Pair { sigma: 0.97 * 1.3f64.cos(), omega: 0.97 * 1.3f64.sin(), e: [-0.02, 0.05], s: 0.8, k: [-0.01, 0.015, 0.002, -0.004] },
             ],
             inputs: vec![InputParams { kappa: 0.2, s: 1.2 }, InputParams { kappa: -0.1, s: 0.7 }],
         }
@@ -743,7 +809,7 @@ mod tests {
         let (lin, data) = toy();
         let ss = lin.linear_part();
         let shape = Shape { a0: 0.1, gamma: 0.6, beta: 0.4 };
-        let prob = Problem { data: &data, b: &ss.b, shape, free: vec![] };
+        let prob = Problem { data: &data, b: &ss.b, shape, free: vec![], envelope: env(&data) };
         let pr = params();
         let base = prob.pass(&pr, 1, true).expect("pass");
         let th = pr.pack();
@@ -769,7 +835,7 @@ mod tests {
                     for k in (0..data.samples).step_by(17) {
                         let fd = (a.runs[bi].x[st][k] - b.runs[bi].x[st][k]) / (2.0 * h);
                         let an = an_idx.map_or(0.0, |i| base.runs[bi].dx[i][st][k]);
-                        assert!((fd - an).abs() < 1e-5 * (1.0 + an.abs()), "θ {j} mode {bi} state {st} k {k}: {an} vs {fd}");
+                        assert!((fd - an).abs() < 1e-4 * (1.0 + an.abs()), "θ {j} mode {bi} state {st} k {k}: {an} vs {fd}");
                     }
                 }
                 off += mp.count();
@@ -785,13 +851,13 @@ mod tests {
         // The truth: the scales the fit starts from (twice the RMS of the linear model's
         // states and of the inputs), known e and κ.
         let mut pr = params();
-        let prob = Problem { data: &data, b: &ss.b, shape, free: vec![] };
+        let prob = Problem { data: &data, b: &ss.b, shape, free: vec![], envelope: env(&data) };
         let lin_pr = Params {
             modes: pr
                 .modes
                 .iter()
                 .map(|mp| match *mp {
-                    ModeParams::Pair { sigma, omega, s, .. } => ModeParams::Pair { sigma, omega, e: [0.0; 2], s },
+                    ModeParams::Pair { sigma, omega, s, .. } => ModeParams::Pair { sigma, omega, e: [0.0; 2], s, k: [0.0; 4] },
                     r => r,
                 })
                 .collect(),
@@ -821,11 +887,11 @@ mod tests {
                 theta[(5 + c, o)] = ss.d[(o, c)];
             }
         }
-        let truth = assemble(&lin, &pr, &theta, &shape).expect("model");
+        let truth = assemble(&lin, &pr, &theta, &shape, true, Some(env(&data))).expect("model");
         for r in 0..3 {
             data.y[r] = truth.simulate(&data.u[r], Warmup::Periods(1)).expect("simulation");
         }
-        let prob = Problem { data: &data, b: &ss.b, shape, free: vec![] };
+        let prob = Problem { data: &data, b: &ss.b, shape, free: vec![], envelope: env(&data) };
         let ev = prob.evaluate(&pr).expect("evaluate").expect("finite");
         let yy: f64 = data.y.iter().flatten().map(|v| v * v).sum();
         assert!(ev.cost < 1e-12 * yy, "the fit's simulation differs from MimoModel::simulate: {}", ev.cost);

@@ -64,6 +64,68 @@ pub struct Branch {
     pub f: Vec<f64>,
 }
 
+/// The inputs' envelope, the signal that schedules the modes' stiffness ([`Schedule`]):
+/// `ρ[k] = a·ρ[k−1] + (1 − a)·(1/m) Σ_c |u_c[k]| / scale`, from `ρ = 0` at rest.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Envelope {
+    /// `a` (0 ≤ a < 1): `exp(−1/τ)` for a time constant of `τ` samples.
+    pub pole: f64,
+    /// `scale` (the inputs' mean absolute value on the fitted data).
+    pub scale: f64,
+}
+
+impl Envelope {
+    /// `ρ[k]` from `ρ[k−1]` and the inputs `u[k]`.
+    #[inline]
+    pub fn step(&self, rho: f64, u: &[f64]) -> f64 {
+        let mean = u.iter().map(|v| v.abs()).sum::<f64>() / u.len().max(1) as f64;
+        self.pole * rho + (1.0 - self.pole) * mean / self.scale
+    }
+
+    /// `ρ` over a warm-up pass and a scored pass of the period `u` (`m × N` channels-major):
+    /// `2N` values.
+    pub fn rho(&self, u: &[f64], m: usize, len: usize) -> Vec<f64> {
+        let mut out = vec![0.0; 2 * len];
+        let mut rho = 0.0;
+        let mut uk = vec![0.0; m];
+        for (k, o) in out.iter_mut().enumerate() {
+            for (c, v) in uk.iter_mut().enumerate() {
+                *v = u[c * len + k % len];
+            }
+            rho = self.step(rho, &uk);
+            *o = rho;
+        }
+        out
+    }
+
+    /// Checks `0 ≤ a < 1` and `scale > 0`.
+    pub fn validate(&self) -> Result<(), MimoError> {
+        if !((0.0..1.0).contains(&self.pole) && self.scale.is_finite() && self.scale > 0.0) {
+            return Err(MimoError::Parameter("the envelope's pole or scale"));
+        }
+        Ok(())
+    }
+}
+
+/// One mode's scheduled stiffness: `x_i, x_{i+1}` get `(k₀ρ + k₂ρ², k₁ρ + k₃ρ²)·x_i`.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ScheduledMode {
+    /// `i`: the first state of the mode's block.
+    pub state: usize,
+    /// `[k₀, k₁, k₂, k₃]`.
+    pub k: [f64; 4],
+}
+
+/// The modes' stiffness scheduled by the inputs' envelope: the amplitude-dependent
+/// stiffness of the piezos (Rayleigh's law: the compliance grows with the field's amplitude).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Schedule {
+    /// The envelope `ρ`.
+    pub envelope: Envelope,
+    /// Per scheduled mode.
+    pub modes: Vec<ScheduledMode>,
+}
+
 /// How a simulation starts.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Warmup {
@@ -93,6 +155,9 @@ pub struct MimoModel {
     pub d: Vec<f64>,
     /// The hysteresis branch, if any.
     pub branch: Option<Branch>,
+    /// The stiffness scheduled by the inputs' envelope, if any.
+    #[serde(default)]
+    pub schedule: Option<Schedule>,
 }
 
 fn row_major(m: &DMatrix<f64>) -> Vec<f64> {
@@ -111,6 +176,7 @@ impl MimoModel {
             c: row_major(&ss.c),
             d: row_major(&ss.d),
             branch: None,
+            schedule: None,
         }
     }
 
@@ -162,6 +228,12 @@ impl MimoModel {
                 return Err(MimoError::Parameter("B0, E or F"));
             }
         }
+        if let Some(sc) = &self.schedule {
+            sc.envelope.validate()?;
+            if sc.modes.iter().any(|sm| sm.state + 1 >= n || sm.k.iter().any(|v| !v.is_finite())) {
+                return Err(MimoError::Parameter("a scheduled mode's state or gains"));
+            }
+        }
         Ok(())
     }
 
@@ -206,10 +278,14 @@ impl MimoModel {
         let mut w = vec![0.0; q];
         let mut uk = vec![0.0; m];
         let mut y = vec![0.0; p * len];
+        let mut rho = 0.0;
         for pass in 0..passes {
             for k in 0..len {
                 for (c, v) in uk.iter_mut().enumerate() {
                     *v = u[c * len + k];
+                }
+                if let Some(sc) = &self.schedule {
+                    rho = sc.envelope.step(rho, &uk);
                 }
                 for (j, ch) in channels.iter().enumerate() {
                     let src = match ch.source {
@@ -249,8 +325,16 @@ impl MimoModel {
                     for j in 0..q {
                         v += e[i * q + j] * w[j];
                     }
-                    x[i] = v;
+                    nx[i] = v;
                 }
+                if let Some(sc) = &self.schedule {
+                    for sm in &sc.modes {
+                        let xi = x[sm.state];
+                        nx[sm.state] += (sm.k[0] * rho + sm.k[2] * rho * rho) * xi;
+                        nx[sm.state + 1] += (sm.k[1] * rho + sm.k[3] * rho * rho) * xi;
+                    }
+                }
+                x.copy_from_slice(&nx);
                 if uses_xl {
                     advance(&self.modes, &xl, &mut nx);
                     for i in 0..n {
