@@ -105,6 +105,11 @@ pub struct FeedbackOptions {
     pub schedule: bool,
     /// The envelope's time constant, samples.
     pub envelope_samples: f64,
+    /// Stop when an iteration lowers the cost by less than this fraction.
+    pub tolerance: f64,
+    /// The Gauss–Newton matrix `JᵀJ` from every `stride`-th sample (the gradient `Jᵀr` and
+    /// the cost from all): `stride` times less of the fit's largest product.
+    pub stride: usize,
 }
 
 impl Default for FeedbackOptions {
@@ -119,6 +124,8 @@ impl Default for FeedbackOptions {
             mode_hysteresis: true,
             schedule: true,
             envelope_samples: 64.0,
+            tolerance: 1e-3,
+            stride: 2,
         }
     }
 }
@@ -224,6 +231,7 @@ fn run_mode(
     rho: &[f64],
     shape: &Shape,
     grad: bool,
+    skip: &[bool],
     extra: &[Forcing],
 ) -> Option<ModeRun> {
     let len = bu[0].len() / 2;
@@ -270,6 +278,9 @@ fn run_mode(
                     out.x[1][k - len] = x1;
                 }
                 for (j, tj) in t.iter_mut().enumerate() {
+                    if j < own && skip[j] {
+                        continue;
+                    }
                     let [d0, d1, dh, dvp] = *tj;
                     if scored {
                         out.dx[j][0][k - len] = d0;
@@ -356,6 +367,8 @@ struct Problem<'a> {
     free: Vec<bool>,
     /// The scheduling signal.
     envelope: Envelope,
+    /// The Gauss–Newton matrix from every `stride`-th sample.
+    stride: usize,
 }
 
 /// One realisation's pass: regressors and, with a Jacobian, its columns.
@@ -416,6 +429,7 @@ impl Problem<'_> {
         let mut phi = DMatrix::<f64>::zeros(len, n + m);
         let mut runs = Vec::with_capacity(ms.len());
         let mut at = 0;
+        let mut theta_at = 0;
         for mp in ms {
             let sz = mp.size();
             let drive = |i: usize| -> Vec<f64> {
@@ -439,7 +453,10 @@ impl Problem<'_> {
                     extra.push(Forcing { coef, sig: &kdws[c] });
                 }
             }
-            let run = run_mode(mp, &bu, &rho, &self.shape, grad, &extra)?;
+            let skip: Vec<bool> =
+                (0..mp.count()).map(|j| !self.free.get(theta_at + j).copied().unwrap_or(true)).collect();
+            theta_at += mp.count();
+            let run = run_mode(mp, &bu, &rho, &self.shape, grad, &skip, &extra)?;
             for i in 0..sz {
                 phi.column_mut(at + i).copy_from_slice(&run.x[i]);
             }
@@ -469,7 +486,7 @@ impl Problem<'_> {
             g += &pt * &ps.phi;
             rhs += &pt * y;
         }
-        let theta = solve_spd(g.clone(), &rhs).ok_or(MimoError::Numerical("C, D least squares (time domain)"))?;
+        let theta = solve_spd(g, &rhs).ok_or(MimoError::Numerical("C, D least squares (time domain)"))?;
         let cost: f64 = passes
             .par_iter()
             .enumerate()
@@ -481,7 +498,7 @@ impl Problem<'_> {
         if !cost.is_finite() {
             return Ok(None);
         }
-        Ok(Some(Evaluated { theta, gram: g, cost }))
+        Ok(Some(Evaluated { theta, cost }))
     }
 
     /// The reduced normal equations at `pr` with `(C, D)` = `ev.theta` (rows: states, inputs;
@@ -496,7 +513,10 @@ impl Problem<'_> {
         let nmode = pr.mode_count();
         let npar = nmode + 2 * pr.inputs.len();
         let kk = ev.theta.nrows();
-        let parts: Option<Vec<(DMatrix<f64>, Vec<DMatrix<f64>>, DVector<f64>)>> = (0..d.u.len())
+        let free_idx: Vec<usize> = (0..npar).filter(|&i| self.free.get(i).copied().unwrap_or(true)).collect();
+        let stride = self.stride.max(1);
+        type Part = (DMatrix<f64>, Vec<DMatrix<f64>>, DVector<f64>, DMatrix<f64>);
+        let parts: Option<Vec<Part>> = (0..d.u.len())
             .into_par_iter()
             .map(|r| {
                 let ps = self.pass(pr, r, true)?;
@@ -523,48 +543,60 @@ impl Problem<'_> {
                     col += mp.count();
                     at += sz;
                 }
-                // `transpose() *` is the blocked product (matrixmultiply), `tr_mul` is not.
-                let jt = jac.transpose();
-                let jj = &jt * &jac;
-                let phi_t = ps.phi.transpose() * sw;
-                let mo: Vec<DMatrix<f64>> = (0..p).map(|o| &phi_t * jac.rows(o * len, len)).collect();
+                // Only the free columns; `transpose() *` is the blocked product
+                // (matrixmultiply), `tr_mul` is not.
+                let jac = jac.select_columns(free_idx.iter());
                 let res_flat = DVector::from_column_slice(res.as_slice());
-                let jr = &jt * &res_flat;
-                Some((jj, mo, jr))
+                let jr = jac.tr_mul(&res_flat);
+                // The Gauss–Newton matrix from every `stride`-th sample (the gradient from all).
+                let rows: Vec<usize> = (0..len).step_by(stride).collect();
+                let f = stride as f64;
+                let phi_s = ps.phi.select_rows(rows.iter()) * (sw * f.sqrt());
+                let all_rows: Vec<usize> = (0..p).flat_map(|o| rows.iter().map(move |&k| o * len + k)).collect();
+                let js = jac.select_rows(all_rows.iter()) * f.sqrt();
+                let jt = js.transpose();
+                let jj = &jt * &js;
+                let phi_t = phi_s.transpose();
+                let ns = rows.len();
+                let mo: Vec<DMatrix<f64>> = (0..p).map(|o| &phi_t * js.rows(o * ns, ns)).collect();
+                let gram = &phi_t * &phi_s;
+                Some((jj, mo, jr, gram))
             })
             .collect();
         let Some(parts) = parts else { return Ok(None) };
-        let mut jj = DMatrix::<f64>::zeros(npar, npar);
-        let mut mo = vec![DMatrix::<f64>::zeros(kk, npar); p];
-        let mut jr = DVector::<f64>::zeros(npar);
-        for (a, b, c) in parts {
+        let nf = free_idx.len();
+        let mut jj = DMatrix::<f64>::zeros(nf, nf);
+        let mut mo = vec![DMatrix::<f64>::zeros(kk, nf); p];
+        let mut jr = DVector::<f64>::zeros(nf);
+        let mut gram = DMatrix::<f64>::zeros(kk, kk);
+        for (a, b, c, g) in parts {
             jj += a;
+            gram += g;
             for (x, y) in mo.iter_mut().zip(b) {
                 *x += y;
             }
             jr += c;
         }
         for m in &mo {
-            let gm = solve_spd(ev.gram.clone(), m).ok_or(MimoError::Numerical("variable projection"))?;
+            let gm = solve_spd(gram.clone(), m).ok_or(MimoError::Numerical("variable projection"))?;
             jj -= m.transpose() * gm;
         }
-        for (i, &f) in self.free.iter().enumerate() {
-            if !f {
-                jj.row_mut(i).fill(0.0);
-                jj.column_mut(i).fill(0.0);
-                jj[(i, i)] = 1.0;
-                jr[i] = 0.0;
+        // Back to every parameter: a fixed one gets a unit diagonal and no gradient.
+        let mut full = DMatrix::<f64>::identity(npar, npar);
+        let mut full_r = DVector::<f64>::zeros(npar);
+        for (a, &i) in free_idx.iter().enumerate() {
+            full_r[i] = jr[a];
+            for (b, &j) in free_idx.iter().enumerate() {
+                full[(i, j)] = jj[(a, b)];
             }
         }
-        Ok(Some((jj, jr)))
+        Ok(Some((full, full_r)))
     }
 }
 
 struct Evaluated {
     /// `[Cᵀ; Dᵀ]`, `(n + m) × p`.
     theta: DMatrix<f64>,
-    /// `ΦᵀWΦ`.
-    gram: DMatrix<f64>,
     cost: f64,
 }
 
@@ -612,7 +644,7 @@ pub fn fit_feedback(
         scale: mean_abs.max(1e-300),
     };
     envelope.validate()?;
-    let mut prob = Problem { data, b: &ss.b, shape: opts.shape, free: vec![], envelope };
+    let mut prob = Problem { data, b: &ss.b, shape: opts.shape, free: vec![], envelope, stride: opts.stride };
     let sq: Option<Vec<Vec<f64>>> = (0..data.u.len())
         .into_par_iter()
         .map(|r| prob.pass(&pr, r, false).map(|p| (0..n + m).map(|i| p.phi.column(i).norm_squared()).collect()))
@@ -647,6 +679,19 @@ pub fn fit_feedback(
     let cost0 = ev.cost;
     let mut th = pr.pack();
     let npar = th.len();
+    // The scales stay within e^±6 of their start (beyond, a channel is linear or a relay).
+    let mut bounds = vec![(f64::NEG_INFINITY, f64::INFINITY); npar];
+    let mut at = 0;
+    for mp in &pr.modes {
+        if let ModeParams::Pair { s, .. } = mp {
+            bounds[at + 4] = (s.ln() - 6.0, s.ln() + 6.0);
+        }
+        at += mp.count();
+    }
+    for ip in &pr.inputs {
+        bounds[at + 1] = (ip.s.ln() - 6.0, ip.s.ln() + 6.0);
+        at += 2;
+    }
     let mut mu = 1e-3;
     let mut done = 0;
     for it in 0..opts.iterations {
@@ -654,7 +699,7 @@ pub fn fit_feedback(
             return Err(MimoError::Numerical("sensitivities of the feedback model"));
         };
         done = it + 1;
-        let dmax = (0..npar).map(|i| jj[(i, i)]).fold(0.0, f64::max).max(1e-300);
+        let dmax = (0..npar).filter(|&i| prob.free[i]).map(|i| jj[(i, i)]).fold(0.0, f64::max).max(1e-300);
         let mut improved = false;
         while mu < 1e8 {
             let mut a = jj.clone();
@@ -665,7 +710,8 @@ pub fn fit_feedback(
                 mu *= 10.0;
                 continue;
             };
-            let trial: Vec<f64> = th.iter().zip(step.iter()).map(|(a, b)| a + b).collect();
+            let trial: Vec<f64> =
+                th.iter().zip(step.iter()).zip(&bounds).map(|((a, b), &(lo, hi))| (a + b).clamp(lo, hi)).collect();
             let cand = pr.unpack(&trial);
             if cand.modes.iter().all(|m| m.radius() < 0.9999) && trial.iter().all(|v| v.is_finite()) {
                 if let Some(e2) = prob.evaluate(&cand)? {
@@ -675,7 +721,7 @@ pub fn fit_feedback(
                         pr = cand;
                         ev = e2;
                         mu = (mu / 3.0).max(1e-9);
-                        improved = rel > 1e-6;
+                        improved = rel > opts.tolerance;
                         break;
                     }
                 }
@@ -809,7 +855,7 @@ mod tests {
         let (lin, data) = toy();
         let ss = lin.linear_part();
         let shape = Shape { a0: 0.1, gamma: 0.6, beta: 0.4 };
-        let prob = Problem { data: &data, b: &ss.b, shape, free: vec![], envelope: env(&data) };
+        let prob = Problem { data: &data, b: &ss.b, shape, free: vec![], envelope: env(&data), stride: 1 };
         let pr = params();
         let base = prob.pass(&pr, 1, true).expect("pass");
         let th = pr.pack();
@@ -851,7 +897,7 @@ mod tests {
         // The truth: the scales the fit starts from (twice the RMS of the linear model's
         // states and of the inputs), known e and κ.
         let mut pr = params();
-        let prob = Problem { data: &data, b: &ss.b, shape, free: vec![], envelope: env(&data) };
+        let prob = Problem { data: &data, b: &ss.b, shape, free: vec![], envelope: env(&data), stride: 1 };
         let lin_pr = Params {
             modes: pr
                 .modes
@@ -891,12 +937,12 @@ mod tests {
         for r in 0..3 {
             data.y[r] = truth.simulate(&data.u[r], Warmup::Periods(1)).expect("simulation");
         }
-        let prob = Problem { data: &data, b: &ss.b, shape, free: vec![], envelope: env(&data) };
+        let prob = Problem { data: &data, b: &ss.b, shape, free: vec![], envelope: env(&data), stride: 1 };
         let ev = prob.evaluate(&pr).expect("evaluate").expect("finite");
         let yy: f64 = data.y.iter().flatten().map(|v| v * v).sum();
         assert!(ev.cost < 1e-12 * yy, "the fit's simulation differs from MimoModel::simulate: {}", ev.cost);
         // From the linear model, the fit finds the loop again.
-        let opts = FeedbackOptions { iterations: 40, shape, ..FeedbackOptions::default() };
+        let opts = FeedbackOptions { iterations: 40, shape, tolerance: 1e-9, ..FeedbackOptions::default() };
         let (fitted, rep) = fit_feedback(&lin, &data, &opts, &|_, _| {}).expect("fit");
         assert!(rep.cost.1 < 1e-8 * rep.cost.0, "{rep:?}");
         let y = fitted.simulate(&data.u[0], Warmup::Periods(1)).expect("simulation");
