@@ -6,7 +6,14 @@
 //! 2. Subspace identification of order `n` from the mean BLA ([`linear::fsid`]).
 //! 3. Output-error refinement on every kept realisation of every level at once
 //!    ([`linear::refine_oe`]): the **linear model for all levels**.
-//! 4. The hysteresis branch ([`model`] module docs): channels on each input and on each mode's
+//! 4. The nonlinear model ([`FitOptions::feedback`], the default): from the linear model of
+//!    step 3, the piezos' hysteresis on the inputs, a Bouc–Wen restoring force in feedback on
+//!    each mode and each mode's stiffness scheduled by the inputs' envelope, fitted together
+//!    by output error in the time domain ([`feedback`]): the **hysteretic model**.
+//!
+//!    Without it, the open-loop hysteresis branch ([`model`] module docs, used only when
+//!    [`FitOptions::input_channels`] or [`FitOptions::mode_channels`] is set): channels on
+//!    each input and on each mode's
 //!    displacement (of the linear model's own state), each divided by its RMS on the data.
 //!    For each candidate shape ([`FitOptions::shapes`], one shape for every channel) the
 //!    channels' steady-state loops are simulated and taken to the lines, and
@@ -85,7 +92,7 @@ impl Default for FitOptions {
     fn default() -> Self {
         Self {
             orders: vec![28],
-            lm_iterations: 20,
+            lm_iterations: 10,
             feedback: Some(FeedbackOptions::default()),
             input_channels: false,
             mode_channels: false,
