@@ -299,8 +299,10 @@ pub struct BoardHarmonic {
     /// Order.
     pub order: u32,
     /// `Re Ĝ(n·f)`, µm/V.
+    #[serde(deserialize_with = "f32_exact")]
     pub re: f32,
     /// `Im Ĝ(n·f)`, µm/V.
+    #[serde(deserialize_with = "f32_exact")]
     pub im: f32,
 }
 
@@ -313,26 +315,35 @@ pub struct BoardSection {
     /// The reference frequency, Hz (the board's phase increment is computed from it).
     pub freq_hz: f64,
     /// The reference amplitude, µm.
+    #[serde(deserialize_with = "f32_exact")]
     pub amplitude_um: f32,
     /// The fade-in, samples.
     pub fade_samples: u32,
     /// `A1, A, A0, γ, β`.
+    #[serde(deserialize_with = "f32s_exact")]
     pub bouc_wen: [f32; 5],
     /// AR part, zero-padded to the board's order.
+    #[serde(deserialize_with = "f32s_exact")]
     pub ar: [f32; MAX_AR],
     /// The cancelled harmonics.
     pub harmonics: Vec<BoardHarmonic>,
     /// RLS `[λ, P0, P_max]`.
+    #[serde(deserialize_with = "f32s_exact")]
     pub rls: [f32; 3],
     /// The compensator's range `[u_min, u_max]`, V.
+    #[serde(deserialize_with = "f32s_exact")]
     pub saturation: [f32; 2],
     /// Bound on each cancellation amplitude, V.
+    #[serde(deserialize_with = "f32_exact")]
     pub uc_max_v: f32,
     /// The preview `τ` of the reference, samples (the model's input delay).
+    #[serde(deserialize_with = "f32_exact")]
     pub preview_samples: f32,
     /// Drive limits `[u_min, u_max]`, V.
+    #[serde(deserialize_with = "f32s_exact")]
     pub drive_limits_v: [f32; 2],
     /// Slew of the ramp to 0 V, V/s.
+    #[serde(deserialize_with = "f32_exact")]
     pub slew_v_per_s: f32,
     /// The host is lost after this long without a frame, ms.
     pub host_timeout_ms: u32,
@@ -441,7 +452,9 @@ impl DesignFile {
         Self::parse(&text).map_err(err)
     }
 
-    /// [`DesignFile::read`] on a text; the error says what is wrong (without the file).
+    /// [`DesignFile::read`] on a text; the error says what is wrong and where (the field,
+    /// and the line and column), without the file. A key given twice and a number the
+    /// board's `f32` cannot hold are refused.
     pub fn parse(text: &str) -> Result<Self, String> {
         let v: serde_json::Value = serde_json::from_str(text).map_err(|e| format!("not JSON: {e}"))?;
         match v.get("format").and_then(|f| f.as_str()) {
@@ -462,10 +475,55 @@ impl DesignFile {
             Some(x) => return Err(format!("version {x}: this boucwen reads version {VERSION}")),
             None => return Err("no \"version\"".into()),
         }
-        let d: DesignFile = serde_json::from_value(v).map_err(|e| format!("{e}"))?;
+        // From the text, not from `v`: a key given twice is an error here (in `v` the second
+        // value silently replaced the first).
+        let de = &mut serde_json::Deserializer::from_str(text);
+        let d: DesignFile = serde_path_to_error::deserialize(de).map_err(|e| {
+            let path = e.path().to_string();
+            if path == "." { e.inner().to_string() } else { format!("{path}: {}", e.inner()) }
+        })?;
         d.board_params().map_err(|e| format!("board: {e}"))?;
         Ok(d)
     }
+}
+
+/// A number of the board section as the board's `f32`: refused if the `f64` written does
+/// not fit (beyond `f32::MAX` in size, which would become infinite, or a non-zero value so
+/// small that it would become 0).
+fn f32_exact<'de, D: serde::Deserializer<'de>>(d: D) -> Result<f32, D::Error> {
+    to_f32(f64::deserialize(d)?)
+}
+
+/// [`f32_exact`] for each number of an array.
+fn f32s_exact<'de, D: serde::Deserializer<'de>, const N: usize>(d: D) -> Result<[f32; N], D::Error>
+where
+    [f64; N]: Deserialize<'de>,
+{
+    let x = <[f64; N]>::deserialize(d)?;
+    let mut out = [0.0f32; N];
+    for (o, v) in out.iter_mut().zip(x) {
+        *o = to_f32(v)?;
+    }
+    Ok(out)
+}
+
+fn to_f32<E: serde::de::Error>(x: f64) -> Result<f32, E> {
+    let v = x as f32;
+    if v.is_infinite() && x.is_finite() {
+        return Err(E::custom(format_args!(
+            "{:e} does not fit the board's f32 (at most {:e} in size)",
+            x,
+            f32::MAX
+        )));
+    }
+    if v == 0.0 && x != 0.0 {
+        return Err(E::custom(format_args!(
+            "{:e} is too small for the board's f32 (it would become 0; the smallest is {:e})",
+            x,
+            f32::from_bits(1)
+        )));
+    }
+    Ok(v)
 }
 
 /// The fit percentage `100·(1 − ‖y − ŷ‖/‖y − ȳ‖)`.

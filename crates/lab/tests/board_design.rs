@@ -173,7 +173,7 @@ fn a_design_file_that_is_not_right_is_refused_whole() {
     assert!(e.contains("host timeout"), "{e}");
     let e = DesignFile::parse(&text.replace("\"sample_period_us\": 1000", "\"sample_period_us\": -3"))
         .unwrap_err();
-    assert!(e.starts_with("invalid value: integer `-3`, expected u32"), "{e}");
+    assert!(e.starts_with("board.sample_period_us: invalid value: integer `-3`, expected u32"), "{e}");
 }
 
 #[test]

@@ -395,31 +395,6 @@ pub mod limits {
     pub const LOCKSTEP_PATIENCE_TICKS: u32 = 20;
 }
 
-/// Checks the numbers of a [`ControllerParams`] beyond what the compensator checks.
-fn check_controller(p: &ControllerParams) -> Result<(), Error> {
-    if cfg!(feature = "no-preview") && p.preview_samples != 0.0 {
-        return Err(Error::OutOfRange("preview (not built in: feature no-preview)"));
-    }
-    let (lo, hi) = limits::SAMPLE_PERIOD_US;
-    if !(lo..=hi).contains(&p.sample_period_us) {
-        return Err(Error::OutOfRange("sample period (100 µs to 100 ms)"));
-    }
-    if p.amplitude_um.is_nan() || p.amplitude_um.abs() > limits::AMPLITUDE_MAX_UM {
-        return Err(Error::OutOfRange("reference amplitude (at most 1e4 µm)"));
-    }
-    if p.fade_samples > limits::FADE_MAX_SAMPLES {
-        return Err(Error::OutOfRange("fade-in (at most 1e7 samples)"));
-    }
-    let s = &p.saturation;
-    if !(s.u_min.abs() <= limits::U_MAX_V && s.u_max.abs() <= limits::U_MAX_V) {
-        return Err(Error::OutOfRange("saturation (at most 1000 V)"));
-    }
-    if p.uc_max.is_nan() || p.uc_max > limits::U_MAX_V {
-        return Err(Error::OutOfRange("uc_max (at most 1000 V)"));
-    }
-    Ok(())
-}
-
 /// Checks a [`SafetyParams`].
 pub fn check_safety(p: &SafetyParams) -> Result<(), Error> {
     if !(p.u_min <= 0.0 && p.u_min >= -limits::U_MAX_V) {
@@ -475,10 +450,12 @@ struct OrcCtl {
 
 /// One step of either controller: `(k, u, flags)`.
 impl Ctl {
+    /// The run's controller, `p` checked by [`ControllerParams::validate`] (the host's
+    /// check too).
     fn new(p: &ControllerParams, _orc: Option<&OrcParams>) -> Result<Self, Error> {
-        check_controller(p)?;
         #[cfg(feature = "orc")]
         if let Some(o) = _orc {
+            p.validate()?;
             let (pi, orc) = o.configs(p);
             return Ok(Ctl::Orc(OrcCtl {
                 reference: Reference::new(p),

@@ -550,3 +550,30 @@ fn fuzz_fields_board_never_panics_stalls_or_drives_out_of_range() {
         panic!("{e}");
     }
 }
+
+/// What the host's check accepts the board accepts, and the other way round: a controller
+/// with hostile fields is acknowledged by [`Device`] exactly when
+/// [`ControllerParams::validate`] passes it (the host validates with it before it sends or
+/// writes parameters).
+#[test]
+fn fuzz_the_board_accepts_exactly_what_the_host_check_accepts() {
+    let mut runner = TestRunner::new(Config::with_cases(4 * cases()));
+    let result = runner.run(&controller(), |p| {
+        let host = p.validate();
+        let mut dev = Device::new();
+        let mut out = Vec::new();
+        let mut sink = |bytes: &[u8]| {
+            let mut d = Decoder::new();
+            out.extend(bytes.iter().filter_map(|&b| d.push(b)).filter_map(Result::ok).map(|p| p.msg));
+        };
+        dev.on_packet(Ok(Packet { seq: 0, msg: Message::SetController(p.clone()) }), &mut sink);
+        let board_ok = matches!(out[..], [Message::Ack { .. }]);
+        if host.is_ok() != board_ok {
+            return Err(fail(format!("host {host:?}, board {out:?} for {p:?}")));
+        }
+        Ok(())
+    });
+    if let Err(e) = result {
+        panic!("{e}");
+    }
+}

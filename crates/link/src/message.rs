@@ -80,10 +80,13 @@ pub struct ControllerParams {
 }
 
 impl ControllerParams {
-    /// Checks the parameters as the board does before it accepts them: a non-zero sample
-    /// period, a finite amplitude, an invertible model, and each cancelled harmonic, RLS
-    /// setting and range as the core's compensator checks them (the error names the
-    /// parameter).
+    /// Checks the parameters as the board does before it accepts them (`SetController`
+    /// answers `Fault(InvalidParams)` with this error), and as the host does before it
+    /// sends or writes them: this is the one check of both ends. Every number within the
+    /// board's [`limits`](super::device::limits) (sample period, amplitude, fade-in,
+    /// preview, saturation, `uc_max`), an invertible model, and each cancelled harmonic, RLS
+    /// setting and range as the core's compensator checks them. The error names the
+    /// parameter.
     ///
     /// ```
     /// use boucwen_core::compensator::Saturation;
@@ -112,16 +115,32 @@ impl ControllerParams {
     /// # Ok::<(), boucwen_core::Error>(())
     /// ```
     pub fn validate(&self) -> Result<(), Error> {
-        if self.sample_period_us == 0 {
-            return Err(Error::OutOfRange("sample period (must be > 0 µs)"));
+        use super::device::limits;
+        if cfg!(feature = "no-preview") && self.preview_samples != 0.0 {
+            return Err(Error::OutOfRange("preview (not built in: feature no-preview)"));
+        }
+        let (lo, hi) = limits::SAMPLE_PERIOD_US;
+        if !(lo..=hi).contains(&self.sample_period_us) {
+            return Err(Error::OutOfRange("sample period (100 µs to 100 ms)"));
         }
         if !self.amplitude_um.is_finite() {
             return Err(Error::NonFinite("reference amplitude"));
         }
-        if !(self.preview_samples >= 0.0
-            && self.preview_samples <= super::device::limits::PREVIEW_MAX_SAMPLES)
-        {
+        if self.amplitude_um.abs() > limits::AMPLITUDE_MAX_UM {
+            return Err(Error::OutOfRange("reference amplitude (at most 1e4 µm)"));
+        }
+        if self.fade_samples > limits::FADE_MAX_SAMPLES {
+            return Err(Error::OutOfRange("fade-in (at most 1e7 samples)"));
+        }
+        if !(self.preview_samples >= 0.0 && self.preview_samples <= limits::PREVIEW_MAX_SAMPLES) {
             return Err(Error::OutOfRange("preview (0 to 16 samples)"));
+        }
+        let s = &self.saturation;
+        if !(s.u_min.abs() <= limits::U_MAX_V && s.u_max.abs() <= limits::U_MAX_V) {
+            return Err(Error::OutOfRange("saturation (at most 1000 V)"));
+        }
+        if !(self.uc_max <= limits::U_MAX_V) {
+            return Err(Error::OutOfRange("uc_max (at most 1000 V)"));
         }
         let base = CompensatorConfig::<f32, MAX_AR, 0> {
             model: self.model,

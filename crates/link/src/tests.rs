@@ -705,6 +705,37 @@ fn a_plant_input_outside_the_drive_limits_is_refused_and_outputs_stay_finite() {
     }
 }
 
+/// The board's check of a controller is `ControllerParams::validate`, the host's too: what
+/// one refuses the other refuses, naming the same field (the host's design file used to
+/// pass values the board then refused: issue 29, item 1).
+#[test]
+fn the_host_check_is_the_board_check() {
+    type Change = fn(&mut ControllerParams);
+    let cases: [(Change, &str); 6] = [
+        (|p| p.sample_period_us = 50, "sample period"),
+        (|p| p.fade_samples = u32::MAX, "fade-in"),
+        (|p| p.amplitude_um = 1e6, "reference amplitude"),
+        (|p| p.saturation = Saturation { u_min: -1e6, u_max: 1e6 }, "saturation"),
+        (|p| p.uc_max = 1e6, "uc_max"),
+        (|p| p.uc_max = f32::INFINITY, "uc_max"),
+    ];
+    for (change, field) in cases {
+        let mut p = controller_params(&[]);
+        change(&mut p);
+        let host = p.validate().expect_err(field).to_string();
+        assert!(host.contains(field), "{host} vs {field}");
+        let mut b = Bench::new();
+        b.send(Message::SetController(p));
+        match &b.take()[..] {
+            [Message::Fault(f)] => {
+                assert_eq!(f.code, FaultCode::InvalidParams);
+                assert!(host.starts_with(f.text.as_str()), "board {:?}, host {host:?}", f.text);
+            }
+            other => panic!("{field}: {other:?}"),
+        }
+    }
+}
+
 #[test]
 fn parameters_out_of_range_are_refused_naming_the_field() {
     let mut b = Bench::new();
