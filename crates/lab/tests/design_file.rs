@@ -135,6 +135,18 @@ fn what_the_board_refuses_the_host_refuses_naming_it() {
     assert!(e.starts_with("duplicate field `version`"), "{e}");
 }
 
+/// Issue 29, item 2: a model the inverse cannot use loaded, and the run sat at ±10 V.
+#[test]
+fn a_model_the_inverse_cannot_use_is_refused_with_the_reason() {
+    let e = DesignFile::parse(&with_board("bouc_wen", "[0, 0, 0, 0, 0]")).unwrap_err();
+    assert!(e.starts_with("board: model gain A1 (the inverse divides by it"), "{e}");
+    let e = DesignFile::parse(&with_board("bouc_wen", "[20.0, 25.0, 0.0, 2.0, 3.0]")).unwrap_err();
+    assert!(e.starts_with("board: model's slope at rest (not invertible"), "{e}");
+    // The mirror of a sensor counting the stroke downwards is a model the inverse uses.
+    let d = DesignFile::parse(&with_board("bouc_wen", "[-20.0, -6.0, -0.5, -2.0, 3.0]")).unwrap();
+    board_accepts(&d).unwrap();
+}
+
 /// A number as the JSON of a board field may hold it: a value in range, one at an edge of
 /// a range, one beyond, one that does not fit an f32, a negative, a huge integer.
 fn hostile_number() -> impl Strategy<Value = String> {

@@ -389,6 +389,13 @@ pub mod limits {
     pub const FAULT_BURST: u32 = 4;
     /// Ticks per bad-frame answer once the burst is spent.
     pub const FAULT_REFILL_TICKS: u32 = 10;
+    /// Smallest `|A1|` of a model the inverse divides by, µm/V (a picometre per volt: no
+    /// actuator the board drives is that weak; `A1 = 0` makes the inverse useless).
+    pub const MIN_GAIN_UM_PER_V: f32 = 1.0e-6;
+    /// Smallest slope of the static part `A1·u − h` at rest, on either branch, relative to
+    /// `|A1|` (below it the inverse's denominator guard acts from the first sample, and
+    /// `u_f` runs to a bound of the saturation).
+    pub const MIN_SLOPE_AT_REST: f32 = 1.0e-3;
     /// Lockstep run: most ticks a step waits for the previous sample's measurement before
     /// it steps without it (20 ms at 1 kHz: a host that answers at all answers sooner, and
     /// a lost frame costs no more than this).

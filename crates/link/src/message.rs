@@ -84,9 +84,16 @@ impl ControllerParams {
     /// answers `Fault(InvalidParams)` with this error), and as the host does before it
     /// sends or writes them: this is the one check of both ends. Every number within the
     /// board's [`limits`](super::device::limits) (sample period, amplitude, fade-in,
-    /// preview, saturation, `uc_max`), an invertible model, and each cancelled harmonic, RLS
-    /// setting and range as the core's compensator checks them. The error names the
-    /// parameter.
+    /// preview, saturation, `uc_max`); a model the direct inverse can use (a gain `A1` of at
+    /// least [`MIN_GAIN_UM_PER_V`](super::device::limits::MIN_GAIN_UM_PER_V) in size, and the
+    /// static part `A1·u − h` moving with `u` the way `A1` does on both branches at rest,
+    /// `sign(A1)·(A1 − A ∓ A0) ≥`
+    /// [`MIN_SLOPE_AT_REST`](super::device::limits::MIN_SLOPE_AT_REST)`·|A1|`, where every
+    /// run starts); and each cancelled harmonic, RLS setting and range as the core's
+    /// compensator checks them. The error names the parameter.
+    ///
+    /// A model that fails the inverse's condition (`A1 = 0`: `bouc_wen = [0, 0, 0, 0, 0]`)
+    /// would drive the actuator to a saturation bound and hold it there, without a fault.
     ///
     /// ```
     /// use boucwen_core::compensator::Saturation;
@@ -152,6 +159,7 @@ impl ControllerParams {
         };
         base.validate()?;
         DirectInverse::new(self.model)?;
+        check_invertible(&self.model.bw)?;
         for &h in &self.harmonics {
             CompensatorConfig::<f32, MAX_AR, 1> {
                 model: base.model,
@@ -165,6 +173,27 @@ impl ControllerParams {
         }
         Ok(())
     }
+}
+
+/// The direct inverse's condition on the model (see [`ControllerParams::validate`]): a
+/// gain `A1` the inverse can divide by, and a static part `A1·u − h` that moves with `u` the
+/// way `A1` does on both branches at rest (`h = 0`). A sensor counting the stroke downwards
+/// gives the mirrored model (`A1 < 0`), which passes as its mirror does.
+fn check_invertible(bw: &BoucWenParams<f32>) -> Result<(), Error> {
+    use super::device::limits;
+    if !(bw.a1.abs() >= limits::MIN_GAIN_UM_PER_V) {
+        return Err(Error::OutOfRange("model gain A1 (the inverse divides by it: |A1| at least 1e-6 µm/V)"));
+    }
+    let sign = if bw.a1 > 0.0 { 1.0 } else { -1.0 };
+    for rising in [true, false] {
+        let slope = sign * (bw.a1 - bw.slope(0.0, rising));
+        if !(slope >= limits::MIN_SLOPE_AT_REST * bw.a1.abs()) {
+            return Err(Error::OutOfRange(
+                "model's slope at rest (not invertible: A1 − A ∓ A0 must have A1's sign, ≥ 1e-3·|A1|)",
+            ));
+        }
+    }
+    Ok(())
 }
 
 /// The on-chip plant of the self-test and of the board's plant mode: the core's enhanced

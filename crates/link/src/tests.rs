@@ -711,13 +711,15 @@ fn a_plant_input_outside_the_drive_limits_is_refused_and_outputs_stay_finite() {
 #[test]
 fn the_host_check_is_the_board_check() {
     type Change = fn(&mut ControllerParams);
-    let cases: [(Change, &str); 6] = [
+    let cases: [(Change, &str); 8] = [
         (|p| p.sample_period_us = 50, "sample period"),
         (|p| p.fade_samples = u32::MAX, "fade-in"),
         (|p| p.amplitude_um = 1e6, "reference amplitude"),
         (|p| p.saturation = Saturation { u_min: -1e6, u_max: 1e6 }, "saturation"),
         (|p| p.uc_max = 1e6, "uc_max"),
         (|p| p.uc_max = f32::INFINITY, "uc_max"),
+        (|p| p.model.bw = BoucWenParams { a1: 0.0, a: 0.0, a0: 0.0, gamma: 0.0, beta: 0.0 }, "model gain A1"),
+        (|p| p.model.bw.a = 25.0, "not invertible"),
     ];
     for (change, field) in cases {
         let mut p = controller_params(&[]);
@@ -734,6 +736,40 @@ fn the_host_check_is_the_board_check() {
             other => panic!("{field}: {other:?}"),
         }
     }
+}
+
+/// A model the direct inverse cannot use is refused with the reason (issue 29, item 2):
+/// `bouc_wen = [0, 0, 0, 0, 0]` used to load and hold the drive at a saturation bound; a
+/// loop whose static part falls as `u` rises at rest (`A1 − A − A0 < 0`) too. The mirrored
+/// model of a sensor counting the stroke downwards passes, and the inverse works on it.
+#[test]
+fn a_model_the_inverse_cannot_use_is_refused_with_the_reason() {
+    let zero = ControllerParams {
+        model: ExtendedParams { bw: BoucWenParams::default(), ar: [0.0; MAX_AR] },
+        ..controller_params(&[])
+    };
+    let e = zero.validate().unwrap_err().to_string();
+    assert!(e.starts_with("model gain A1 (the inverse divides by it"), "{e}");
+    assert!(Controller::new(&zero).is_err());
+    for (a1, a, a0) in [(20.0, 25.0, 0.0), (20.0, 6.0, 14.5), (20.0, 6.0, -14.5), (1e-9, 0.0, 0.0)] {
+        let mut p = controller_params(&[]);
+        (p.model.bw.a1, p.model.bw.a, p.model.bw.a0) = (a1, a, a0);
+        assert!(p.validate().is_err(), "A1 {a1}, A {a}, A0 {a0} accepted");
+    }
+    let mut mirrored = controller_params(&[]);
+    let bw = mirrored.model.bw;
+    mirrored.model.bw = BoucWenParams { a1: -bw.a1, a: -bw.a, a0: -bw.a0, gamma: -bw.gamma, beta: bw.beta };
+    assert_eq!(mirrored.validate(), Ok(()));
+    let mut c = Controller::new(&mirrored).unwrap();
+    let mut b = Bench::new();
+    b.send(Message::SetController(mirrored));
+    assert!(matches!(&b.take()[..], [Message::Ack { .. }]));
+    // Its inverse drives within the range, never sitting at a bound.
+    let mut u_max = 0.0f32;
+    for _ in 0..1000 {
+        u_max = u_max.max(c.step(None).unwrap().out.u.abs());
+    }
+    assert!(u_max > 0.0 && u_max < 9.0, "{u_max} V");
 }
 
 #[test]
