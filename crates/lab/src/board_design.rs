@@ -74,6 +74,11 @@ pub const FORMAT: &str = "boucwen-board-design";
 /// Version 2 added the preview (`board.preview_samples`, `model.delay_samples`); a version
 /// 1 file (designed without the delay) is refused: design again.
 pub const VERSION: u32 = 2;
+/// Longest design file read, bytes. A design file is a few kilobytes (about 200 bytes more
+/// per record it came from); a longer one is refused before it is read.
+pub const MAX_FILE_BYTES: u64 = 1 << 20;
+/// Most records a design file lists.
+pub const MAX_SOURCES: usize = 1000;
 /// Share of the input's power the fundamental must hold for a sine record.
 pub const SINE_SHARE: f64 = 0.9;
 /// Length of the prediction run by default, s.
@@ -279,7 +284,8 @@ pub struct ReferenceSection {
 pub struct PredictionSection {
     /// The prediction model: `extended` or `enhanced(n,…)`.
     pub model: String,
-    /// Its branches.
+    /// Its branches (at most [`MAX_HARMONICS`]).
+    #[serde(deserialize_with = "at_most_max_harmonics")]
     pub branches: Vec<BranchSection>,
     /// Its fit percentage on the held-out half.
     pub fit_pct: f64,
@@ -325,7 +331,8 @@ pub struct BoardSection {
     /// AR part, zero-padded to the board's order.
     #[serde(deserialize_with = "f32s_exact")]
     pub ar: [f32; MAX_AR],
-    /// The cancelled harmonics.
+    /// The cancelled harmonics (at most [`MAX_HARMONICS`]).
+    #[serde(deserialize_with = "at_most_max_harmonics")]
     pub harmonics: Vec<BoardHarmonic>,
     /// RLS `[λ, P0, P_max]`.
     #[serde(deserialize_with = "f32s_exact")]
@@ -358,13 +365,16 @@ pub struct DesignFile {
     pub version: u32,
     /// The program that wrote it.
     pub created_by: String,
-    /// The records.
+    /// The records (at most [`MAX_SOURCES`]).
+    #[serde(deserialize_with = "at_most_max_sources")]
     pub sources: Vec<SourceRecord>,
     /// The extended model.
     pub model: ModelSection,
-    /// Odd harmonics standing out in the fitted output.
+    /// Odd harmonics standing out in the fitted output (at most [`MAX_HARMONICS`]).
+    #[serde(deserialize_with = "at_most_max_harmonics")]
     pub harmonics_found: Vec<HarmonicSection>,
-    /// The harmonics the compensator cancels.
+    /// The harmonics the compensator cancels (at most [`MAX_HARMONICS`]).
+    #[serde(deserialize_with = "at_most_max_harmonics")]
     pub harmonics_cancelled: Vec<HarmonicSection>,
     /// The reference.
     pub reference: ReferenceSection,
@@ -444,18 +454,43 @@ impl DesignFile {
     }
 
     /// Reads and checks a design file: format, version, every field, and the board's
-    /// parameters as the board checks them.
+    /// parameters as the board checks them. A file longer than [`MAX_FILE_BYTES`] is refused
+    /// before it is read.
     pub fn read(path: &Path) -> Result<Self, DesignFileError> {
+        use std::io::Read as _;
         let name = path.display().to_string();
         let err = |what: String| DesignFileError { path: name.clone(), what };
-        let text = std::fs::read_to_string(path).map_err(|e| err(format!("cannot read: {e}")))?;
+        let file = std::fs::File::open(path).map_err(|e| err(format!("cannot read: {e}")))?;
+        let mut bytes = Vec::new();
+        // At most one byte more than allowed: the length is checked on what was read (the
+        // file may be a pipe, or grow).
+        file.take(MAX_FILE_BYTES + 1)
+            .read_to_end(&mut bytes)
+            .map_err(|e| err(format!("cannot read: {e}")))?;
+        if bytes.len() as u64 > MAX_FILE_BYTES {
+            return Err(err(format!(
+                "longer than {} KiB: not a design file (one is a few KiB)",
+                MAX_FILE_BYTES / 1024
+            )));
+        }
+        let text = String::from_utf8(bytes).map_err(|e| {
+            let line =
+                1 + e.as_bytes()[..e.utf8_error().valid_up_to()].iter().filter(|&&b| b == b'\n').count();
+            err(format!("line {line}: not UTF-8 text"))
+        })?;
         Self::parse(&text).map_err(err)
     }
 
     /// [`DesignFile::read`] on a text; the error says what is wrong and where (the field,
-    /// and the line and column), without the file. A key given twice and a number the
-    /// board's `f32` cannot hold are refused.
+    /// and the line and column), without the file. A key given twice, a number the board's
+    /// `f32` cannot hold and a list longer than a design has are refused.
     pub fn parse(text: &str) -> Result<Self, String> {
+        if text.len() as u64 > MAX_FILE_BYTES {
+            return Err(format!(
+                "longer than {} KiB: not a design file (one is a few KiB)",
+                MAX_FILE_BYTES / 1024
+            ));
+        }
         let v: serde_json::Value = serde_json::from_str(text).map_err(|e| format!("not JSON: {e}"))?;
         match v.get("format").and_then(|f| f.as_str()) {
             Some(FORMAT) => {}
@@ -524,6 +559,50 @@ fn to_f32<E: serde::de::Error>(x: f64) -> Result<f32, E> {
         )));
     }
     Ok(v)
+}
+
+/// A list of at most `max` items, refused at the first item beyond (nothing more is read or
+/// stored).
+fn at_most<'de, D: serde::Deserializer<'de>, T: Deserialize<'de>>(
+    d: D,
+    max: usize,
+) -> Result<Vec<T>, D::Error> {
+    struct Bounded<T> {
+        max: usize,
+        item: std::marker::PhantomData<T>,
+    }
+    impl<'de, T: Deserialize<'de>> serde::de::Visitor<'de> for Bounded<T> {
+        type Value = Vec<T>;
+        fn expecting(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+            write!(f, "a list of at most {}", self.max)
+        }
+        fn visit_seq<A: serde::de::SeqAccess<'de>>(self, mut seq: A) -> Result<Vec<T>, A::Error> {
+            let mut out = Vec::new();
+            while let Some(x) = seq.next_element()? {
+                if out.len() == self.max {
+                    return Err(serde::de::Error::custom(format_args!(
+                        "more than {} items: a design has at most {}",
+                        self.max, self.max
+                    )));
+                }
+                out.push(x);
+            }
+            Ok(out)
+        }
+    }
+    d.deserialize_seq(Bounded { max, item: std::marker::PhantomData })
+}
+
+fn at_most_max_harmonics<'de, D: serde::Deserializer<'de>, T: Deserialize<'de>>(
+    d: D,
+) -> Result<Vec<T>, D::Error> {
+    at_most(d, MAX_HARMONICS)
+}
+
+fn at_most_max_sources<'de, D: serde::Deserializer<'de>, T: Deserialize<'de>>(
+    d: D,
+) -> Result<Vec<T>, D::Error> {
+    at_most(d, MAX_SOURCES)
 }
 
 /// The fit percentage `100·(1 − ‖y − ŷ‖/‖y − ȳ‖)`.

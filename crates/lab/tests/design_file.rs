@@ -1,11 +1,11 @@
 //! The design file as `boucwen board load` reads it (issue 29): the host refuses what the
 //! board would refuse, with the reason and the field, and nothing more; whatever the host
 //! accepts the board's state machine ([`Device`]) accepts (a property test over hostile
-//! numbers).
+//! numbers); sizes are bounded before anything is stored.
 //!
 //! The files here are written by hand (no design is run), so the tests are fast.
 
-use boucwen_lab::board_design::DesignFile;
+use boucwen_lab::board_design::{self, DesignFile};
 use boucwen_link::device::Device;
 use boucwen_link::message::{Message, SafetyParams};
 use boucwen_link::{Decoder, Packet};
@@ -145,6 +145,44 @@ fn a_model_the_inverse_cannot_use_is_refused_with_the_reason() {
     // The mirror of a sensor counting the stroke downwards is a model the inverse uses.
     let d = DesignFile::parse(&with_board("bouc_wen", "[-20.0, -6.0, -0.5, -2.0, 3.0]")).unwrap();
     board_accepts(&d).unwrap();
+}
+
+/// Issue 29, item 3: long lists were read whole (10⁶ harmonics: 820 MB) before being
+/// refused, or accepted; a list is now refused at its first item beyond a design's, and a
+/// file beyond [`board_design::MAX_FILE_BYTES`] before it is read.
+#[test]
+fn long_lists_and_long_files_are_refused_before_they_are_stored() {
+    let many = |n: usize, item: &str| format!("[{}]", vec![item; n].join(", "));
+    let e = DesignFile::parse(&with_board("harmonics", &many(3, r#"{ "order": 3, "re": 1.0, "im": 0.5 }"#)))
+        .unwrap_err();
+    assert!(e.starts_with("board.harmonics: more than 2 items: a design has at most 2"), "{e}");
+    let cancelled = many(
+        3,
+        r#"{ "order": 3, "freq_hz": 69.0, "amplitude": 0.4, "gain_um_per_v": 1.1, "phase_deg": 26.6 }"#,
+    );
+    let text = file(None).replacen(
+        "\"harmonics_cancelled\": [",
+        &format!("\"harmonics_cancelled\": {cancelled}, \"x\": ["),
+        1,
+    );
+    let e = DesignFile::parse(&text).unwrap_err();
+    assert!(e.starts_with("harmonics_cancelled: more than 2 items"), "{e}");
+    // A list of 30 000 items in a file under the size limit is refused at its third item.
+    let long = with_board("harmonics", &many(30_000, r#"{"order":3,"re":1,"im":1}"#));
+    assert!(long.len() < board_design::MAX_FILE_BYTES as usize);
+    let e = DesignFile::parse(&long).unwrap_err();
+    assert!(e.starts_with("board.harmonics: more than 2 items"), "{e}");
+    // A file over the limit: refused unread.
+    let dir = std::env::temp_dir().join(format!("boucwen-design-file-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join("huge.json");
+    let mut text = file(None);
+    text.push_str(&" ".repeat(board_design::MAX_FILE_BYTES as usize));
+    std::fs::write(&path, &text).unwrap();
+    let e = DesignFile::read(&path).unwrap_err().to_string();
+    std::fs::remove_dir_all(&dir).unwrap();
+    assert!(e.ends_with("huge.json: longer than 1024 KiB: not a design file (one is a few KiB)"), "{e}");
+    assert!(DesignFile::parse(&text).unwrap_err().starts_with("longer than 1024 KiB"));
 }
 
 /// A number as the JSON of a board field may hold it: a value in range, one at an edge of
