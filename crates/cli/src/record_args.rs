@@ -40,7 +40,10 @@ impl RecordArgs {
     pub fn read(&self, path: &Path) -> Result<Imported, String> {
         if let Some(hz) = self.sample_rate {
             if !(hz.is_finite() && hz > 0.0) {
-                return Err(format!("--sample-rate {hz}: must be a positive number of Hz"));
+                return Err(format!(
+                    "--sample-rate {}: must be a positive number of Hz",
+                    record::for_people(hz)
+                ));
             }
         }
         let opts = ImportOptions {
@@ -75,9 +78,14 @@ impl RecordArgs {
         let k = |t: f64| ((t - r.t0) / r.ts).round();
         let (s, e) = (k(a), k(b));
         if !(s >= 0.0 && e <= r.len() as f64 && e > s) {
+            let p = record::for_people;
             return Err(format!(
-                "{}: --window {a}:{b} is not a part of the record, which runs from {} to {} s",
-                r.source, r.t0, t_end
+                "{}: --window {}:{} is not a part of the record, which runs from {} to {} s",
+                r.source,
+                p(a),
+                p(b),
+                p(r.t0),
+                p(t_end)
             ));
         }
         Ok(Some((s as usize, e as usize)))

@@ -482,8 +482,9 @@ impl DesignFile {
     }
 
     /// [`DesignFile::read`] on a text; the error says what is wrong and where (the field,
-    /// and the line and column), without the file. A key given twice, a number the board's
-    /// `f32` cannot hold and a list longer than a design has are refused.
+    /// and the line and column), without the file. A byte-order mark is skipped; a key given
+    /// twice, a number the board's `f32` cannot hold and a list longer than a design has are
+    /// refused.
     pub fn parse(text: &str) -> Result<Self, String> {
         if text.len() as u64 > MAX_FILE_BYTES {
             return Err(format!(
@@ -491,27 +492,63 @@ impl DesignFile {
                 MAX_FILE_BYTES / 1024
             ));
         }
-        let v: serde_json::Value = serde_json::from_str(text).map_err(|e| format!("not JSON: {e}"))?;
-        match v.get("format").and_then(|f| f.as_str()) {
-            Some(FORMAT) => {}
-            Some(other) => {
+        let text = text.strip_prefix('\u{feff}').unwrap_or(text);
+        // The format and the version first (the rest is skipped, not stored): a file of
+        // another kind or version is named as such, not by the first field it lacks.
+        #[derive(Deserialize)]
+        #[serde(expecting = "a JSON object (a boucwen board design)")]
+        struct Header {
+            // `Some(null)` for `"version": null`, `None` when absent.
+            #[serde(default, deserialize_with = "present")]
+            format: Option<serde_json::Value>,
+            #[serde(default, deserialize_with = "present")]
+            version: Option<serde_json::Value>,
+        }
+        fn present<'de, D: serde::Deserializer<'de>>(d: D) -> Result<Option<serde_json::Value>, D::Error> {
+            serde_json::Value::deserialize(d).map(Some)
+        }
+        let h: Header = serde_json::from_str(text).map_err(|e| {
+            if e.is_syntax() || e.is_eof() { format!("not JSON: {e}") } else { format!("{e}") }
+        })?;
+        if text.trim_start().starts_with('[') {
+            // (Which serde would read as the fields in order.)
+            return Err("a JSON array, not an object: not a boucwen board design".into());
+        }
+        match &h.format {
+            Some(serde_json::Value::String(f)) if f == FORMAT => {}
+            Some(serde_json::Value::String(other)) => {
                 let shown: String = other.chars().take(40).collect();
                 return Err(format!("format {shown:?}, not a boucwen board design"));
             }
+            Some(other) => {
+                return Err(format!("format {}, not a boucwen board design ({FORMAT:?})", found(other)));
+            }
             None => return Err(format!("no \"format\": not a boucwen board design ({FORMAT})")),
         }
-        match v.get("version").and_then(|x| x.as_u64()) {
-            Some(x) if x == VERSION as u64 => {}
-            Some(1) => {
+        match &h.version {
+            Some(serde_json::Value::Number(x)) => match x.as_u64() {
+                Some(x) if x == VERSION as u64 => {}
+                Some(1) => {
+                    return Err(format!(
+                        "version 1: designed without the actuator's input delay, which the board now previews; this boucwen reads version {VERSION}: design again (boucwen board design)"
+                    ));
+                }
+                Some(_) => return Err(format!("version {x}: this boucwen reads version {VERSION}")),
+                None if x.is_f64() => {
+                    return Err(format!(
+                        "version {x}: not a whole number; this boucwen reads version {VERSION}"
+                    ));
+                }
+                None => return Err(format!("version {x}: this boucwen reads version {VERSION}")),
+            },
+            Some(other) => {
                 return Err(format!(
-                    "version 1: designed without the actuator's input delay, which the board now previews; this boucwen reads version {VERSION}: design again (boucwen board design)"
+                    "version {}: this boucwen reads version {VERSION} (a number)",
+                    found(other)
                 ));
             }
-            Some(x) => return Err(format!("version {x}: this boucwen reads version {VERSION}")),
-            None => return Err("no \"version\"".into()),
+            None => return Err(format!("no \"version\": this boucwen reads version {VERSION}")),
         }
-        // From the text, not from `v`: a key given twice is an error here (in `v` the second
-        // value silently replaced the first).
         let de = &mut serde_json::Deserializer::from_str(text);
         let d: DesignFile = serde_path_to_error::deserialize(de).map_err(|e| {
             let path = e.path().to_string();
@@ -519,6 +556,20 @@ impl DesignFile {
         })?;
         d.board_params().map_err(|e| format!("board: {e}"))?;
         Ok(d)
+    }
+}
+
+/// A JSON value as a message shows what was found: a number as written, a string quoted
+/// (at most 40 characters), else its kind.
+fn found(v: &serde_json::Value) -> String {
+    use serde_json::Value;
+    match v {
+        Value::Number(n) => n.to_string(),
+        Value::String(s) => format!("{:?} (a string)", s.chars().take(40).collect::<String>()),
+        Value::Bool(b) => format!("{b} (not a number)"),
+        Value::Null => "null".into(),
+        Value::Array(_) => "an array".into(),
+        Value::Object(_) => "an object".into(),
     }
 }
 
@@ -546,15 +597,15 @@ fn to_f32<E: serde::de::Error>(x: f64) -> Result<f32, E> {
     let v = x as f32;
     if v.is_infinite() && x.is_finite() {
         return Err(E::custom(format_args!(
-            "{:e} does not fit the board's f32 (at most {:e} in size)",
-            x,
+            "{} does not fit the board's f32 (at most {:e} in size)",
+            crate::record::for_people(x),
             f32::MAX
         )));
     }
     if v == 0.0 && x != 0.0 {
         return Err(E::custom(format_args!(
-            "{:e} is too small for the board's f32 (it would become 0; the smallest is {:e})",
-            x,
+            "{} is too small for the board's f32 (it would become 0; the smallest is {:e})",
+            crate::record::for_people(x),
             f32::from_bits(1)
         )));
     }

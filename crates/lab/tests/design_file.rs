@@ -185,6 +185,34 @@ fn long_lists_and_long_files_are_refused_before_they_are_stored() {
     assert!(DesignFile::parse(&text).unwrap_err().starts_with("longer than 1024 KiB"));
 }
 
+/// Issue 29, item 4: what was found is said; a byte-order mark is skipped.
+#[test]
+fn messages_say_what_was_found() {
+    let text = file(None);
+    let version = |v: &str| {
+        DesignFile::parse(&text.replace("\"version\": 2", &format!("\"version\": {v}"))).unwrap_err()
+    };
+    assert_eq!(version("-1"), "version -1: this boucwen reads version 2");
+    assert_eq!(version("\"2\""), "version \"2\" (a string): this boucwen reads version 2 (a number)");
+    assert_eq!(version("2.0"), "version 2.0: not a whole number; this boucwen reads version 2");
+    assert_eq!(version("null"), "version null: this boucwen reads version 2 (a number)");
+    assert_eq!(version("7"), "version 7: this boucwen reads version 2");
+    let e = DesignFile::parse(&text.replace("  \"version\": 2,\n", "")).unwrap_err();
+    assert_eq!(e, "no \"version\": this boucwen reads version 2");
+    let e = DesignFile::parse(&text.replace("\"boucwen-board-design\"", "3")).unwrap_err();
+    assert_eq!(e, "format 3, not a boucwen board design (\"boucwen-board-design\")");
+    let e = DesignFile::parse("[1, 2]").unwrap_err();
+    assert_eq!(e, "a JSON array, not an object: not a boucwen board design");
+    let e = DesignFile::parse("3").unwrap_err();
+    assert!(
+        e.starts_with("invalid type: integer `3`, expected a JSON object (a boucwen board design)"),
+        "{e}"
+    );
+    // A byte-order mark, as a Windows editor saves the file.
+    let d = DesignFile::parse(&format!("\u{feff}{text}")).unwrap();
+    assert_eq!(d, DesignFile::parse(&text).unwrap());
+}
+
 /// A number as the JSON of a board field may hold it: a value in range, one at an edge of
 /// a range, one beyond, one that does not fit an f32, a negative, a huge integer.
 fn hostile_number() -> impl Strategy<Value = String> {

@@ -457,7 +457,9 @@ impl ImportInfo {
             .collect();
         let time = match &self.time {
             TimeSource::Column(_) => String::new(),
-            TimeSource::SampleRate(hz) => format!("; times from --sample-rate {hz} Hz"),
+            TimeSource::SampleRate(hz) => {
+                format!("; times from --sample-rate {} Hz", super::for_people(*hz))
+            }
         };
         let spikes = self.spikes.as_ref().map_or(String::new(), |s| format!("; {}", s.describe()));
         let preamble = self.preamble.map_or(String::new(), |p| {

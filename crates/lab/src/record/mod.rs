@@ -112,7 +112,7 @@ mod replay;
 pub mod spikes;
 mod write;
 
-pub use error::{At, EXCERPT_CHARS, ErrorKind, RecordError, excerpt};
+pub use error::{At, EXCERPT_CHARS, ErrorKind, RecordError, excerpt, for_people};
 pub use import::{
     ColumnMap, ColumnRef, ImportInfo, ImportOptions, Imported, LengthUnit, MAX_SPAN_UM, MIN_SPAN_UM,
     MissingNote, OptionError, Preamble, Separator, SpikeNote, TimeSource, TimeUnit, VoltUnit, import,
