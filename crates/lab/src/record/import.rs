@@ -721,18 +721,34 @@ fn recognise(name: &str) -> (Option<Col>, Option<f64>, bool) {
         _ => (None, unit),
     };
     let exact = exact || (role.is_some() && unit == Some(base));
-    let scale = match (role, unit) {
-        (Some(Col::T), Some(u)) => match u {
+    let scale = role.zip(unit).and_then(|(r, u)| unit_scale(r, u));
+    (role, scale, exact)
+}
+
+/// The unit a header name states for the role `col` it was given for with `--columns`,
+/// whatever the name (`Zeit [ms]` for `t`, `Spannung (mV)` for `u`; a name that is only a
+/// unit, `ms`): seconds, volts or micrometres per unit. `None` if it states none of that
+/// role's units.
+fn stated_scale(name: &str, col: Col) -> Option<f64> {
+    let lower = name.trim().to_lowercase();
+    let (base, unit) = split_unit(&lower);
+    // "m" alone names a column more often than it states metres.
+    unit.or((base != "m").then_some(base)).and_then(|u| unit_scale(col, u))
+}
+
+/// Seconds, volts or micrometres per `unit` for the role `col` (`None`: not one of its
+/// units).
+fn unit_scale(col: Col, unit: &str) -> Option<f64> {
+    match col {
+        Col::T => match unit {
             "s" => Some(1.0),
             "ms" => Some(1e-3),
             "us" | "µs" | "μs" => Some(1e-6),
             _ => None,
         },
-        (Some(Col::U), Some(u)) => u.parse::<VoltUnit>().ok().map(VoltUnit::volts),
-        (Some(Col::Y | Col::D), Some(u)) => u.parse::<LengthUnit>().ok().map(LengthUnit::micrometres),
-        _ => None,
-    };
-    (role, scale, exact)
+        Col::U => unit.parse::<VoltUnit>().ok().map(VoltUnit::volts),
+        Col::Y | Col::D => unit.parse::<LengthUnit>().ok().map(LengthUnit::micrometres),
+    }
 }
 
 /// Units of a time column.
@@ -945,7 +961,9 @@ pub fn import_text(text: &str, source: &str, opts: &ImportOptions) -> Result<Imp
             return Err(err(first_line, kind));
         }
         slot[r] = Some(idx);
-        scale_from_header[r] = recognised.get(idx).and_then(|x| x.1);
+        // The unit is the header's whatever picks the column: a name --columns gives for a
+        // role may be one the importer does not know (`Zeit [ms]`), its unit still holds.
+        scale_from_header[r] = names.as_ref().and_then(|n| stated_scale(&n[idx], col));
     }
     if header {
         // Roles not given are found by their names.

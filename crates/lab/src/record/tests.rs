@@ -194,6 +194,32 @@ fn messages_write_numbers_for_people_and_stay_one_line() {
     assert!(e.contains("(columns found: t, u, y, dis?p??x)"), "{e:?}");
 }
 
+/// Issue 29, item 6: with `--columns` the unit comes from the header all the same (the
+/// times of `Zeit [ms]` were refused as unit-less, and `mV`, `nm` dropped).
+#[test]
+fn columns_given_by_position_keep_the_headers_units() {
+    let text = "Zeit [ms];Spannung (mV);Weg_nm\n0;0;0\n1;500;1000\n2;-500;-1000\n3;0;0\n";
+    let opts = ImportOptions { columns: Some("t=1,u=2,y=3".parse().unwrap()), ..ImportOptions::default() };
+    let i = import_with(text, &opts).unwrap();
+    assert_eq!((i.record.ts, i.record.u[1], i.record.y[1]), (1e-3, 0.5, 1.0));
+    assert_eq!(
+        (i.info.t_unit, i.info.u_unit, i.info.y_unit),
+        (TimeUnit::Ms, VoltUnit::MilliV, LengthUnit::Nm)
+    );
+    // The same by name, and a name that is only a unit.
+    let opts = ImportOptions {
+        columns: Some("t=zeit [ms],u=Spannung (mV),y=weg_nm".parse().unwrap()),
+        ..ImportOptions::default()
+    };
+    assert_eq!(import_with(text, &opts).unwrap().record.ts, 1e-3);
+    let opts = ImportOptions { columns: Some("t=1,u=2,y=3".parse().unwrap()), ..ImportOptions::default() };
+    let r = import_with("ms,V,um\n0,0,0\n1,1,1\n2,0,0\n", &opts).unwrap().record;
+    assert_eq!((r.ts, r.u[1], r.y[1]), (1e-3, 1.0, 1.0));
+    // A flag still overrides the header.
+    let opts = ImportOptions { t_unit: Some(TimeUnit::Us), ..opts };
+    assert_eq!(import_with("ms,V,um\n0,0,0\n1,1,1\n2,0,0\n", &opts).unwrap().record.ts, 1e-6);
+}
+
 #[test]
 fn non_uniform_sampling_and_dropped_sample() {
     // A dropped sample (the step at line 5 is 2 ms).
