@@ -68,7 +68,7 @@ mod rls;
 
 pub use error::FitError;
 pub use lm::Stop;
-pub use model::{Branch, HostModel, LoopShape, MAX_BRANCHES, ModelSpec, delayed};
+pub use model::{Branch, HostModel, LoopShape, MAX_BRANCHES, ModelSpec, delayed, delayed_iter};
 pub use options::{
     Averaging, DelaySearch, LoopSearch, MAX_DELAY, MIN_SLOPE, OeOptions, Outer, Param, Samples,
     StructureSearch, Tolerances, invertible_for, operating_slope, slope_rel, upwards,

@@ -33,13 +33,19 @@ pub struct HostModel {
 
 /// `u` delayed by `delay` samples (linear interpolation, zero before the start).
 pub fn delayed(u: &[f64], delay: f64) -> Vec<f64> {
-    if delay <= 0.0 {
-        return u.to_vec();
-    }
-    let m = delay.floor() as usize;
-    let frac = delay - m as f64;
-    let at = |i: isize| if i < 0 { 0.0 } else { u.get(i as usize).copied().unwrap_or(0.0) };
-    (0..u.len() as isize).map(|k| (1.0 - frac) * at(k - m as isize) + frac * at(k - m as isize - 1)).collect()
+    delayed_iter(u, delay).collect()
+}
+
+/// [`delayed`] sample by sample, without a copy of `u`.
+pub fn delayed_iter(u: &[f64], delay: f64) -> impl Iterator<Item = f64> + '_ {
+    // `delay <= 0` (not `< 0`): no delay, `u` itself bit for bit.
+    let (m, frac) =
+        if delay <= 0.0 { (0, None) } else { (delay.floor() as usize, Some(delay - delay.floor())) };
+    let at = move |i: isize| if i < 0 { 0.0 } else { u.get(i as usize).copied().unwrap_or(0.0) };
+    (0..u.len() as isize).map(move |k| match frac {
+        None => u[k as usize],
+        Some(frac) => (1.0 - frac) * at(k - m as isize) + frac * at(k - m as isize - 1),
+    })
 }
 
 impl HostModel {
@@ -85,10 +91,8 @@ impl HostModel {
         fn run<const M: usize>(m: &HostModel, u: &[f64], ts: f64) -> Result<Vec<f64>, FitError> {
             let p = m.enhanced::<M>(ts)?;
             let mut s = p.initial_state();
-            Ok(u.iter().map(|&uk| p.step(&mut s, uk)).collect())
+            Ok(delayed_iter(u, m.delay).map(|uk| p.step(&mut s, uk)).collect())
         }
-        let ud = delayed(u, self.delay);
-        let u = ud.as_slice();
         let mut y = match self.branches.len() {
             0 => run::<0>(self, u, ts)?,
             1 => run::<1>(self, u, ts)?,

@@ -1,6 +1,6 @@
 //! What the output-error fit searches, on which data, and when it stops.
 
-use super::{HostModel, LoopShape, delayed};
+use super::{HostModel, LoopShape, delayed_iter};
 use boucwen_core::model::BoucWenParams;
 
 /// The structure (the AR part `G`) of the fit.
@@ -174,7 +174,7 @@ pub fn invertible_for(model: &HostModel, u: &[f64]) -> bool {
     let bw = &model.ext.bw;
     let mut s = boucwen_core::model::HysteresisState::default();
     let (mut lo, mut hi) = (0.0f64, 0.0f64);
-    for &uk in &delayed(u, model.delay) {
+    for uk in delayed_iter(u, model.delay) {
         let h = s.step(bw, uk);
         lo = lo.min(h);
         hi = hi.max(h);

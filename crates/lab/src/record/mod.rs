@@ -109,6 +109,7 @@
 mod error;
 mod import;
 mod replay;
+mod select;
 pub mod spikes;
 mod write;
 
