@@ -121,6 +121,7 @@ impl ControllerParams {
     /// assert!(p.validate().is_err());
     /// # Ok::<(), boucwen_core::Error>(())
     /// ```
+    #[allow(clippy::neg_cmp_op_on_partial_ord, reason = "NaN must fail the checks, as `!(x <= max)` does")]
     pub fn validate(&self) -> Result<(), Error> {
         use super::device::limits;
         if cfg!(feature = "no-preview") && self.preview_samples != 0.0 {
@@ -179,6 +180,7 @@ impl ControllerParams {
 /// gain `A1` the inverse can divide by, and a static part `A1·u − h` that moves with `u` the
 /// way `A1` does on both branches at rest (`h = 0`). A sensor counting the stroke downwards
 /// gives the mirrored model (`A1 < 0`), which passes as its mirror does.
+#[allow(clippy::neg_cmp_op_on_partial_ord, reason = "NaN must fail the checks, as `!(x >= min)` does")]
 fn check_invertible(bw: &BoucWenParams<f32>) -> Result<(), Error> {
     use super::device::limits;
     if !(bw.a1.abs() >= limits::MIN_GAIN_UM_PER_V) {
