@@ -4,7 +4,7 @@
 //! default 40, and `--seed S`, default 1000, the first seed; `--verbose` prints every case;
 //! `--dump DIR` writes every record there as `EFFECT-SEED.csv`, a multisine's realisations
 //! as `EFFECT-SEED-rN.csv`, for `boucwen diagnose`).
-//! For every effect of [`EFFECTS`] it draws `N` cases ([`boucwen_lab::hidden::Case`],
+//! For every effect of [`EFFECTS`] it draws `N` cases ([`boucwen_lab::fixtures::hidden::Case`],
 //! seeds `S..S+N`), records each on the virtual bimorph and diagnoses it with the default
 //! thresholds. A diagnosis is right when:
 //! - a hidden harmonic or drift: the first finding names it (kind, order, frequency within
@@ -16,7 +16,7 @@
 //! unless a case cannot be drawn or recorded.
 //!
 //! Then (`--kinds new` runs only these, `--kinds old` only the ones above) the kinds of
-//! [`boucwen_lab::effects`], `N` seeds each from `S`: sine records with saturation of the
+//! [`boucwen_lab::fixtures::effects`], `N` seeds each from `S`: sine records with saturation of the
 //! drive or of the output, creep, an input delay, a 5th harmonic with drift and the sensor's
 //! range with a 3rd harmonic, right when every hidden effect is named (kind; order for a
 //! harmonic) and the first finding is one of them; periodic records (a multisine in two
@@ -24,10 +24,12 @@
 //! finding names its parity, and clean, right when there is no finding. `--only PART` runs
 //! only the new kinds whose name contains `PART` (e.g. `--only triangle`).
 
+use boucwen_lab::diagnose::periodic::Realisation;
 use boucwen_lab::diagnose::{self, Diagnosis, Kind, Thresholds};
-use boucwen_lab::effects::{Nonlinearity, PeriodicCase, PeriodicDrive, SineCase, SineEffect, Truth};
-use boucwen_lab::hidden::{Case, Effect};
-use boucwen_lab::periodic::Realisation;
+use boucwen_lab::fixtures::effects::{
+    Nonlinearity, PeriodicCase, PeriodicDrive, SineCase, SineEffect, Truth,
+};
+use boucwen_lab::fixtures::hidden::{Case, Effect};
 use boucwen_lab::record::Record;
 use rayon::prelude::*;
 use std::time::Instant;

@@ -1,5 +1,5 @@
 //! The share of right diagnoses over a randomized batch of messy records: the cases of
-//! `diagnose_batch` recorded and written as bench records come ([`boucwen_lab::messy`]).
+//! `diagnose_batch` recorded and written as bench records come ([`boucwen_lab::fixtures::messy`]).
 //!
 //! Run with `cargo bench --bench diagnose_messy` (options after `--`: `--per-mess N`,
 //! default 12, records per mess; `--seed S`, default 5000, the first seed; `--verbose`
@@ -14,7 +14,7 @@
 //! be drawn.
 
 use boucwen_lab::diagnose::{self, Thresholds};
-use boucwen_lab::messy::{Mess, Messy};
+use boucwen_lab::fixtures::messy::{Mess, Messy};
 use boucwen_lab::record::import_text;
 use rayon::prelude::*;
 use std::time::Instant;

@@ -1,6 +1,6 @@
 //! `diagnose` finds effects hidden in records of the virtual bimorph.
 //!
-//! Each record comes from a randomized, seeded scenario ([`boucwen_lab::hidden::Case`]) in
+//! Each record comes from a randomized, seeded scenario ([`boucwen_lab::fixtures::hidden::Case`]) in
 //! which one effect is switched on (or none) without telling the diagnosis. The diagnosis
 //! must name the hidden effect first (kind, order, frequency within 2 Hz) and lower the
 //! held-out RMS by at least 50 %, and find nothing in the clean records.
@@ -12,7 +12,7 @@
 //! noise floor, and no term can gain 50 % on it.
 
 use boucwen_lab::diagnose::{self, Diagnosis, Kind, Thresholds};
-use boucwen_lab::hidden::{Case, Effect};
+use boucwen_lab::fixtures::hidden::{Case, Effect};
 use boucwen_lab::record::Record;
 use boucwen_sim::{Bimorph, Scenario};
 

@@ -2,13 +2,15 @@
 //! `order` where one applies, `freq_hz` or a band, `level` or `residual_share`, `cause`,
 //! `kept` and `term_rms_um`, most important first (the kept terms in the order they were
 //! chosen, then what no term removed). Checked on sine records with each hidden cause of
-//! [`boucwen_lab::effects`] (and two at once) and on periodic and multisine records with a
+//! [`boucwen_lab::fixtures::effects`] (and two at once) and on periodic and multisine records with a
 //! hidden odd or even nonlinearity; the truth is kept by the test, and each hidden effect
 //! must be named.
 
+use boucwen_lab::diagnose::periodic::Realisation;
 use boucwen_lab::diagnose::{self, Outcome, Thresholds};
-use boucwen_lab::effects::{Nonlinearity, PeriodicCase, PeriodicDrive, SineCase, SineEffect, Truth};
-use boucwen_lab::periodic::Realisation;
+use boucwen_lab::fixtures::effects::{
+    Nonlinearity, PeriodicCase, PeriodicDrive, SineCase, SineEffect, Truth,
+};
 use boucwen_lab::record::Record;
 use serde_json::Value;
 

@@ -10,10 +10,10 @@
 //! three: "record more periods"), a square's fast harmonics and the dropouts were counted
 //! as noise.
 
+use boucwen_lab::diagnose::periodic::Realisation;
 use boucwen_lab::diagnose::{self, DiagnoseError, Kind, Outcome, Thresholds};
-use boucwen_lab::periodic::Realisation;
 use boucwen_lab::record::{ImportOptions, import_text};
-use boucwen_lab::steady::DriveKind;
+use boucwen_lab::signal::steady::DriveKind;
 use std::f64::consts::TAU;
 use std::fmt::Write as _;
 

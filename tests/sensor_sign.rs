@@ -6,10 +6,10 @@
 //! refinements stop by tolerances). Checked on a record of every kind of hidden effect and
 //! drive. The fit finds the output's sign as `boucwen_lab::fit::fit_oe_on` says.
 
+use boucwen_lab::diagnose::periodic::Realisation;
 use boucwen_lab::diagnose::{self, Outcome, Thresholds};
-use boucwen_lab::effects::{Nonlinearity, PeriodicCase, PeriodicDrive, SineCase, SineEffect};
-use boucwen_lab::hidden::{Case, Effect};
-use boucwen_lab::periodic::Realisation;
+use boucwen_lab::fixtures::effects::{Nonlinearity, PeriodicCase, PeriodicDrive, SineCase, SineEffect};
+use boucwen_lab::fixtures::hidden::{Case, Effect};
 use boucwen_lab::record::Record;
 use serde_json::Value;
 

@@ -1,13 +1,13 @@
 //! `boucwen diagnose DATA.csv [MORE.csv …] [--realisations] [--json] [--report DIR]`: what
 //! the extended model gets wrong on a record, the cause, the term that removes it and the
 //! gain (see [`boucwen_lab::diagnose`]; a sine drive, or a periodic or multisine drive, see
-//! [`boucwen_lab::periodic`]). Several records run on all cores, one report (or one JSON
+//! [`boucwen_lab::diagnose::periodic`]). Several records run on all cores, one report (or one JSON
 //! line) per record in the order given; with `--realisations` they are realisations of one
 //! periodic or multisine drive, diagnosed together.
 
 use crate::record_args::RecordArgs;
 use boucwen_lab::diagnose::Outcome;
-use boucwen_lab::periodic::Realisation;
+use boucwen_lab::diagnose::periodic::Realisation;
 use boucwen_lab::record::Imported;
 use boucwen_lab::{diagnose, report};
 use rayon::prelude::*;

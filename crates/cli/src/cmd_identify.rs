@@ -10,10 +10,13 @@
 
 use crate::cmd_diagnose::import_json;
 use crate::record_args::RecordArgs;
+use boucwen_lab::diagnose;
 use boucwen_lab::diagnose::ModelCheck;
-use boucwen_lab::fit::{self, Averaging, DataUsed, Fit, HostModel, ModelSpec, OeOptions};
-use boucwen_lab::steady::{self, Drive, DriveKind};
-use boucwen_lab::{analysis, diagnose, sweep};
+use boucwen_lab::experiments::sweep;
+use boucwen_lab::fit::{self, Averaging, DataUsed, Fit, OeOptions};
+use boucwen_lab::model::{HostModel, ModelSpec};
+use boucwen_lab::signal::analysis;
+use boucwen_lab::signal::steady::{self, Drive, DriveKind};
 use std::path::PathBuf;
 
 #[derive(Clone, Copy, PartialEq, Eq, clap::ValueEnum)]

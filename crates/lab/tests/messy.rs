@@ -1,9 +1,9 @@
-//! Records as they come from a bench ([`boucwen_lab::messy`]): each mess, read with the
+//! Records as they come from a bench ([`boucwen_lab::fixtures::messy`]): each mess, read with the
 //! flags a user would pass, diagnosed right by the rule of `diagnose_batch`.
 
 use boucwen_lab::diagnose::{self, Diagnosis, Kind, Thresholds};
-use boucwen_lab::hidden::Effect;
-use boucwen_lab::messy::{Mess, Messy};
+use boucwen_lab::fixtures::hidden::Effect;
+use boucwen_lab::fixtures::messy::{Mess, Messy};
 use boucwen_lab::record::{ImportOptions, import_text};
 
 fn diagnosed(mess: Mess, effect: Effect, seed: u64) -> (Messy, Diagnosis) {
@@ -126,7 +126,7 @@ fn a_drive_with_its_own_harmonics_is_a_sine_and_its_harmonics_are_not_the_actuat
             Ok(d) => {
                 diagnosed += 1;
                 assert!(m.is_right(&d), "{}: {:?}", m.file_name(), d.findings.first().map(|f| &f.cause));
-                assert_eq!(d.drive.kind, boucwen_lab::steady::DriveKind::Sine);
+                assert_eq!(d.drive.kind, boucwen_lab::signal::steady::DriveKind::Sine);
             }
             Err(e) => {
                 assert!(matches!(e, diagnose::DiagnoseError::Ratchets { .. }), "{}: {e}", m.file_name())

@@ -60,23 +60,24 @@
 
 mod error;
 mod lm;
-mod model;
 mod options;
 mod periodic;
 mod problem;
+mod refine;
 mod rls;
 
 pub use error::FitError;
 pub use lm::Stop;
-pub use model::{Branch, HostModel, LoopShape, MAX_BRANCHES, ModelSpec, delayed};
 pub use options::{
-    Averaging, DelaySearch, LoopSearch, MAX_DELAY, MIN_SLOPE, OeOptions, Outer, Param, Samples,
-    StructureSearch, Tolerances, invertible_for, operating_slope, slope_rel, upwards,
+    Averaging, DelaySearch, LoopSearch, MIN_SLOPE, OeOptions, Outer, Param, Samples, StructureSearch,
+    Tolerances, invertible_for, operating_slope, slope_rel, upwards,
 };
 pub use periodic::{MAX_DRIVE_APERIODIC, MAX_TEMPLATE_ORDER, MIN_PERIODS};
+pub use refine::{Criterion, held_out_rms, refine};
 pub use rls::fit_paper_rls;
 
-use crate::analysis;
+use crate::model::{HostModel, LoopShape, ModelSpec};
+use crate::signal::analysis;
 use periodic::Template;
 use problem::{Eval, Problem, Window};
 use rayon::prelude::*;
@@ -358,7 +359,7 @@ fn fit_once(
     opt: &OeOptions,
 ) -> Result<Fit, (FitError, usize)> {
     let (u, y, ts) = (data.u, data.y, data.ts);
-    spec.check(ts).map_err(|e| (e, 0))?;
+    spec.check(ts).map_err(|e| (e.into(), 0))?;
     let end = data.end(opt);
     let need = opt.skip + 200;
     if end < need {
@@ -571,6 +572,7 @@ pub fn free_run_rms(model: &HostModel, u: &[f64], y: &[f64], ts: f64, from: usiz
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::model::Branch;
     use boucwen_core::model::{BoucWenParams, ExtendedParams};
     use boucwen_core::signal::{Oscillator, Sine};
 
@@ -690,7 +692,7 @@ mod tests {
         let u = drive(23.0, 5000);
         let y = u.clone();
         let e = fit_oe(&u, &y, 1e-3, 4000, &ModelSpec::enhanced(23.0, &[25]), &[], &OeOptions::default());
-        assert_eq!(e.err(), Some(FitError::BadHarmonic(25)));
+        assert_eq!(e.err(), Some(FitError::Model(crate::model::ModelError::BadHarmonic(25))));
         let e = fit_oe(&u, &y, 1e-3, 100, &ModelSpec::extended(23.0), &[], &OeOptions::default());
         assert!(matches!(e, Err(FitError::TooFewSamples { .. })));
     }

@@ -15,8 +15,9 @@
 //!   `h' = h + (1 - γ'|h|)Δu + (A0/A - βh)|Δu|`, each filtered by `G`;
 //! - `∂u_τ/∂τ = u[k-m-1] - u[k-m]` (`τ = m + frac`, linear interpolation), filtered by `G`.
 
-use super::options::{MAX_DELAY, MIN_SLOPE, Outer, Param, operating_slope};
-use super::{HostModel, ModelSpec};
+use super::options::{MIN_SLOPE, Outer, Param, operating_slope};
+use crate::model::MAX_DELAY;
+use crate::model::{HostModel, ModelSpec};
 use boucwen_core::model::{BoucWenParams, ExtendedParams, HarmonicBranch, ar_is_stable};
 use boucwen_core::signal::{Oscillator, sin_cos};
 use nalgebra::{DMatrix, DVector};
@@ -375,7 +376,7 @@ fn dot(a: &[f64], b: &[f64]) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::fit::LoopShape;
+    use crate::model::LoopShape;
 
     /// The Jacobian from the sensitivity equations against central differences of the
     /// projected cost: `Jᵀr` is half the cost's gradient.

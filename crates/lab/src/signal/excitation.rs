@@ -10,7 +10,7 @@
 //! left out; a new draw of the phases is a new *realisation* with the same lines.
 //!
 //! ```
-//! use boucwen_lab::excitation::Multisine;
+//! use boucwen_lab::signal::excitation::Multisine;
 //! let ms = Multisine::odd_random_phase(1000, 1, 60, 4, 7);
 //! assert!(ms.lines.iter().all(|k| k % 2 == 1));
 //! let u = ms.signal(0.5, 3); // three periods, peak 0.5 V
@@ -143,7 +143,7 @@ pub fn triangle(amplitude: f64, period_samples: usize, n: usize) -> Vec<f64> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::analysis;
+    use crate::signal::analysis;
 
     #[test]
     fn odd_random_phase_leaves_one_line_per_group_out() {

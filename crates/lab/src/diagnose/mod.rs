@@ -65,7 +65,7 @@
 //!
 //! ## Thresholds
 //! The defaults ([`Thresholds::default`]) were set on records of the virtual bimorph with
-//! hidden effects (`crate::hidden`, feature `fixtures`); what they give over a batch of records is measured by
+//! hidden effects (`crate::fixtures::hidden`, feature `fixtures`); what they give over a batch of records is measured by
 //! `cargo bench --bench diagnose_batch`. Over 480 records (`-- --per-effect 60`), the
 //! largest term any candidate carried on the 120 clean records was 1.67 % of the output's
 //! fundamental RMS; the term of the hidden effect carried 3.65 % or more in 95 % of the
@@ -73,12 +73,16 @@
 //! harmonic the extended model imitates to within twice the noise floor, where no term can
 //! gain the 50 % the batch asks for (see the README for the shares).
 
-use crate::analysis::{self, Tone};
-use crate::causes;
-use crate::fit::{self, Averaging, FitData, FitError, HostModel, ModelSpec, OeOptions};
+pub mod causes;
+pub mod periodic;
+
+use crate::fit::refine;
+use crate::fit::{self, Averaging, FitData, FitError, OeOptions};
+use crate::model::terms::{TermModel, Terms};
+use crate::model::{HostModel, ModelSpec};
 use crate::record::Y_LIMIT_UM;
-use crate::steady::{self, Drive, DriveKind, NoResponse, Window, WindowError};
-use crate::terms::{TermModel, Terms, refine};
+use crate::signal::analysis::{self, Tone};
+use crate::signal::steady::{self, Drive, DriveKind, NoResponse, Window, WindowError};
 use rayon::prelude::*;
 use std::f64::consts::TAU;
 
@@ -237,7 +241,7 @@ pub struct Diagnosis {
     pub model: HostModel,
     /// The extended model's terms beyond its host (saturation, creep, delay).
     pub terms: Terms,
-    /// The input delay the step onto the drive shows (see [`crate::causes::delay_scan`]),
+    /// The input delay the step onto the drive shows (see [`crate::diagnose::causes::delay_scan`]),
     /// when the record holds the step.
     pub delay: Option<DelayEstimate>,
     /// Its held-out free-run RMS (µm).
@@ -482,7 +486,7 @@ pub enum Outcome {
     /// A sine drive.
     Sine(Box<Diagnosis>),
     /// A periodic drive that is not a sine, or a multisine.
-    Periodic(Box<crate::periodic::PeriodicDiagnosis>),
+    Periodic(Box<crate::diagnose::periodic::PeriodicDiagnosis>),
 }
 
 impl Outcome {
@@ -495,7 +499,7 @@ impl Outcome {
     }
 
     /// The JSON object (see [`Diagnosis::json`] and
-    /// [`crate::periodic::PeriodicDiagnosis::json`]), with `analysis`: `sine` or `periodic`.
+    /// [`crate::diagnose::periodic::PeriodicDiagnosis::json`]), with `analysis`: `sine` or `periodic`.
     pub fn json(&self) -> serde_json::Value {
         let (mut j, kind) = match self {
             Outcome::Sine(d) => (d.json(), "sine"),
@@ -516,10 +520,10 @@ impl Outcome {
 
 /// Diagnoses the records of one drive, choosing the analysis by the drive found in the first:
 /// a sine (one record: [`diagnose_record`]), or a periodic drive that is not a sine or a
-/// multisine (one record, or several realisations: [`crate::periodic::diagnose`]). A drive
+/// multisine (one record, or several realisations: [`crate::diagnose::periodic::diagnose`]). A drive
 /// that does not repeat, or none, is one sentence.
 pub fn diagnose_drive(
-    records: &[crate::periodic::Realisation<'_>],
+    records: &[crate::diagnose::periodic::Realisation<'_>],
     ts: f64,
     th: &Thresholds,
 ) -> Result<Outcome, DiagnoseError> {
@@ -539,7 +543,7 @@ pub fn diagnose_drive(
             d.describe()
         ))),
         DriveKind::Periodic | DriveKind::Multisine => {
-            crate::periodic::diagnose(records, ts, th).map(|d| Outcome::Periodic(Box::new(d)))
+            crate::diagnose::periodic::diagnose(records, ts, th).map(|d| Outcome::Periodic(Box::new(d)))
         }
         DriveKind::Aperiodic => {
             steady::check_response(&u[w.start..w.end], &y[w.start..w.end], ts, &d)
@@ -882,7 +886,8 @@ impl Diagnosis {
             );
         }
         let not_kept = self.not_kept();
-        if self.findings.is_empty() && r.rms_um > crate::periodic::NOISE_MULTIPLE * self.noise_um.0 {
+        if self.findings.is_empty() && r.rms_um > crate::diagnose::periodic::NOISE_MULTIPLE * self.noise_um.0
+        {
             // Not "the model accounts for the record": say what it misses.
             let top = r.harmonics.iter().enumerate().max_by(|a, b| a.1.amp.total_cmp(&b.1.amp));
             let parts = [
@@ -1004,7 +1009,7 @@ pub enum DiagnoseError {
         /// The drive, described.
         drive: String,
     },
-    /// The drive is a sine or none (for the periodic analysis: [`crate::periodic`]).
+    /// The drive is a sine or none (for the periodic analysis: [`crate::diagnose::periodic`]).
     NotPeriodic {
         /// The drive, described.
         drive: String,
@@ -1113,6 +1118,12 @@ impl std::fmt::Display for DiagnoseError {
 }
 
 impl std::error::Error for DiagnoseError {}
+
+impl From<crate::model::ModelError> for DiagnoseError {
+    fn from(e: crate::model::ModelError) -> Self {
+        DiagnoseError::Fit(e.into())
+    }
+}
 
 impl From<FitError> for DiagnoseError {
     fn from(e: FitError) -> Self {
@@ -1933,7 +1944,7 @@ fn diagnose_from(
 /// first samples are the step onto the drive.
 pub const STEP_FROM_REST: f64 = 0.05;
 
-/// Fits the candidate's term onto `model` (see [`crate::causes`]): a harmonic branch or a
+/// Fits the candidate's term onto `model` (see [`crate::diagnose::causes`]): a harmonic branch or a
 /// drift line by [`fit::fit_oe_on`] (on the record prepared as `data`, or on the input as the
 /// model's terms transform it), or by a joint refinement when the model has terms inside or
 /// after it; a saturation or creep by its own fit.
@@ -2272,7 +2283,7 @@ fn with_term(model: &HostModel, c: &Candidate, ts: f64) -> Option<ModelSpec> {
         Kind::OddHarmonic | Kind::EvenHarmonic => {
             let o = c.order?;
             if spec.harmonics.contains(&o)
-                || spec.harmonics.len() >= fit::MAX_BRANCHES
+                || spec.harmonics.len() >= crate::model::MAX_BRANCHES
                 || o as f64 * model.drive_hz >= 0.5 / ts
             {
                 return None;

@@ -4,9 +4,9 @@
 //! A drive file needs a header row; if it has a `t` column, its sample interval must be the
 //! scenario's. The record (`t,u,y`) is written atomically.
 
-use crate::analysis;
-use crate::experiment;
+use crate::design::closed_loop;
 use crate::record::{Record, RecordError};
+use crate::signal::analysis;
 use boucwen_sim::{Bimorph, Scenario, SimError};
 use serde::Serialize;
 use std::fmt;
@@ -170,7 +170,7 @@ pub fn run(scenario: &Scenario, drive: &Drive, out: &Path) -> Result<Summary, Si
     let y = Bimorph::new(scenario)?.run(&u)?;
     let record = Record::new(&out.display().to_string(), 0.0, ts, u, y, None)?;
     record.write(out)?;
-    let (lo, hi) = crate::analysis::extent(&record.y);
+    let (lo, hi) = crate::signal::analysis::extent(&record.y);
     let harmonics = match drive {
         Drive::Sine { freq_hz, .. } => {
             let half = &record.y[record.len() / 2..];
@@ -208,7 +208,7 @@ pub fn sine_drive(f: f64, amplitude: f64, seconds: f64, ts: f64) -> Result<Vec<f
         return Err(SimulateError::Seconds(seconds));
     }
     let n = ((seconds / ts).round() as usize).max(2);
-    experiment::sine(amplitude, f, ts, n).map_err(|_| SimulateError::Frequency { freq_hz: f, nyquist_hz })
+    closed_loop::sine(amplitude, f, ts, n).map_err(|_| SimulateError::Frequency { freq_hz: f, nyquist_hz })
 }
 
 /// The drive column `name` of a CSV file; `ts` is the scenario's sample interval, which a

@@ -1,6 +1,6 @@
 //! The causes a sine diagnosis tries beyond harmonics and drift, and how each is fitted:
 //! saturation of the drive or of the output, creep, and an input delay (see
-//! [`crate::diagnose`] for how they enter the search, [`crate::terms`] for the model).
+//! [`crate::diagnose`] for how they enter the search, [`crate::model::terms`] for the model).
 //!
 //! ## Evidence
 //! - **Saturation of the output** (a sensor's range, a mechanical stop): the output sits on
@@ -27,11 +27,11 @@
 //! A term whose model acts on the input only (a clamped drive, an extra delay) is fitted by
 //! [`crate::fit::fit_oe`] on the transformed input: the clamp's level on a grid
 //! ([`CLAMP_GRID`] of the drive's largest excursion), the best by its fitting error, then
-//! refined with the rest of the model ([`crate::terms::refine`]). The host's delay is
+//! refined with the rest of the model ([`crate::fit::refine`]). The host's delay is
 //! fitted with the clamp: the clamp puts harmonics into the drive whose phases against the
 //! fundamental the actuator's delay sets (a sampled actuator answers about a sample late),
 //! and a single sine's structure absorbs the delay at the fundamental only (on saturation
-//! seed 1008 of `crate::effects` (feature `fixtures`) the fit at the true level leaves 0.21 µm with the delay
+//! seed 1008 of `crate::fixtures::effects` (feature `fixtures`) the fit at the true level leaves 0.21 µm with the delay
 //! at 0 and 0.039 µm with it fitted, the noise). The delay freed with the clamp may also
 //! carry what is not a clamp, so the clamp is kept only if it fits [`CLAMP_BEYOND_DELAY`]
 //! better than the model with the delay alone, and with a delay below
@@ -39,10 +39,12 @@
 //! output is refined from the current model, from it enlarged, and from a fit to the output
 //! with its clipped samples filled in; creep from the current model.
 
-use crate::analysis::{self, Tone};
 use crate::diagnose::{Candidate, Kind, Residual, ordinal};
-use crate::fit::{self, Averaging, Branch, DelaySearch, FitError, HostModel, ModelSpec, OeOptions, Samples};
-use crate::terms::{Criterion, Param, Relaxation, TermModel, Terms, refine};
+use crate::fit::{self, Averaging, DelaySearch, FitError, OeOptions, Samples};
+use crate::fit::{Criterion, refine};
+use crate::model::terms::{Param, Relaxation, TermModel, Terms};
+use crate::model::{Branch, HostModel, ModelSpec};
+use crate::signal::analysis::{self, Tone};
 use rayon::prelude::*;
 
 /// Share of the samples on a plateau at the output's extreme for a saturation of the output.

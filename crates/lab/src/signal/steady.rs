@@ -49,8 +49,8 @@
 //! `--window START:END` ([`Window::given`]) replaces 1–3; the end is still cut to whole
 //! periods.
 
-use crate::analysis::{self, Tone};
 use crate::record::MIN_EXCITATION_STD_V;
+use crate::signal::analysis::{self, Tone};
 use rustfft::FftPlanner;
 use rustfft::num_complex::Complex;
 use std::fmt::Write as _;

@@ -1,13 +1,16 @@
 //! The host model: the core's enhanced model with any number (up to [`MAX_BRANCHES`]) of
 //! branches, a drift polynomial and an input delay, and what to fit ([`ModelSpec`]).
 
-use super::FitError;
 use boucwen_core::model::{EnhancedParams, ExtendedParams, HarmonicBranch, Model};
 use boucwen_core::signal::Oscillator;
+use std::fmt;
 
 /// A harmonic branch of a host model: the core's branch with an AR part of order 2 (zero
 /// except in the paper's RLS procedure).
 pub type Branch = HarmonicBranch<f64, 2>;
+
+/// Largest input delay a host model carries (samples).
+pub const MAX_DELAY: f64 = 3.0;
 
 /// The most branches a host model may have.
 pub const MAX_BRANCHES: usize = 4;
@@ -66,10 +69,10 @@ impl HostModel {
         s
     }
 
-    fn enhanced<const M: usize>(&self, ts: f64) -> Result<EnhancedParams<f64, 2, 2, M>, FitError> {
+    fn enhanced<const M: usize>(&self, ts: f64) -> Result<EnhancedParams<f64, 2, 2, M>, ModelError> {
         let drive = Oscillator::new(self.drive_hz, ts)?;
         let branches = <[Branch; M]>::try_from(self.branches.as_slice())
-            .map_err(|_| FitError::TooManyBranches(self.branches.len()))?;
+            .map_err(|_| ModelError::TooManyBranches(self.branches.len()))?;
         Ok(EnhancedParams { base: self.ext, branches, drive })
     }
 
@@ -81,8 +84,8 @@ impl HostModel {
 
     /// Free-run simulation from rest (`h = 0`, past outputs 0, phase 0) for the input `u`.
     /// An unstable model's output grows without bound; it is returned as computed.
-    pub fn simulate(&self, u: &[f64], ts: f64) -> Result<Vec<f64>, FitError> {
-        fn run<const M: usize>(m: &HostModel, u: &[f64], ts: f64) -> Result<Vec<f64>, FitError> {
+    pub fn simulate(&self, u: &[f64], ts: f64) -> Result<Vec<f64>, ModelError> {
+        fn run<const M: usize>(m: &HostModel, u: &[f64], ts: f64) -> Result<Vec<f64>, ModelError> {
             let p = m.enhanced::<M>(ts)?;
             let mut s = p.initial_state();
             Ok(u.iter().map(|&uk| p.step(&mut s, uk)).collect())
@@ -95,7 +98,7 @@ impl HostModel {
             2 => run::<2>(self, u, ts)?,
             3 => run::<3>(self, u, ts)?,
             4 => run::<4>(self, u, ts)?,
-            m => return Err(FitError::TooManyBranches(m)),
+            m => return Err(ModelError::TooManyBranches(m)),
         };
         if !self.drift.is_empty() {
             for (k, v) in y.iter_mut().enumerate() {
@@ -156,16 +159,47 @@ impl ModelSpec {
         Self { drive_hz, harmonics: harmonics.to_vec(), drift_degree: None }
     }
 
-    pub(crate) fn check(&self, ts: f64) -> Result<(), FitError> {
+    pub(crate) fn check(&self, ts: f64) -> Result<(), ModelError> {
         if self.harmonics.len() > MAX_BRANCHES {
-            return Err(FitError::TooManyBranches(self.harmonics.len()));
+            return Err(ModelError::TooManyBranches(self.harmonics.len()));
         }
         for &n in &self.harmonics {
             if n < 2 || n as f64 * self.drive_hz >= 0.5 / ts {
-                return Err(FitError::BadHarmonic(n));
+                return Err(ModelError::BadHarmonic(n));
             }
         }
         Oscillator::new(self.drive_hz, ts)?;
         Ok(())
+    }
+}
+
+/// Why a host model cannot be built or run.
+#[derive(Clone, Debug, PartialEq)]
+pub enum ModelError {
+    /// A harmonic at or above Nyquist, or an order below 2.
+    BadHarmonic(u32),
+    /// More branches than supported.
+    TooManyBranches(usize),
+    /// A core error (parameters, frequencies).
+    Core(boucwen_core::Error),
+}
+
+impl fmt::Display for ModelError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            ModelError::BadHarmonic(n) => write!(f, "harmonic order {n} is below 2 or at/above Nyquist"),
+            ModelError::TooManyBranches(m) => {
+                write!(f, "{m} harmonic branches: at most {MAX_BRANCHES} are supported")
+            }
+            ModelError::Core(e) => write!(f, "{e}"),
+        }
+    }
+}
+
+impl std::error::Error for ModelError {}
+
+impl From<boucwen_core::Error> for ModelError {
+    fn from(e: boucwen_core::Error) -> Self {
+        ModelError::Core(e)
     }
 }

@@ -26,10 +26,10 @@
 //! A file that cannot be read, is not a sine or a broadband record, is too short or repeats a
 //! frequency is skipped with a line saying why; the frequencies run on all cores.
 
-use crate::analysis;
+use crate::experiments::sweep::{self, CSV_HEADER, HarmonicChoice, Row, Structure, SweepError};
 use crate::record::Record;
-use crate::steady::{self, DriveKind};
-use crate::sweep::{self, CSV_HEADER, HarmonicChoice, Row, Structure, SweepError};
+use crate::signal::analysis;
+use crate::signal::steady::{self, DriveKind};
 use rayon::prelude::*;
 use std::fmt;
 use std::path::{Path, PathBuf};
@@ -394,7 +394,7 @@ pub fn run(inputs: Vec<MeasuredInput>) -> Result<MeasuredSweep, MeasuredError> {
                 harmonic_order: id.order,
                 cancel_order: 0,
                 cancel_order_oe: 0,
-                alpha_um: crate::experiment::eq25_amplitude(u, y),
+                alpha_um: crate::design::closed_loop::eq25_amplitude(u, y),
                 rms_extended_oe_um: rms_ext_oe,
                 rms_enhanced_oe_um: rms_enh_oe,
                 rmse_uf_oe_um: f64::NAN,

@@ -34,13 +34,11 @@
 //!    enhanced model when that model carries the same harmonic and is invertible, else from
 //!    the extended model. Where no harmonic qualifies the proposed law is `u_f` itself.
 
-use crate::analysis;
+use crate::design::closed_loop::{self, CompensationSettings, ExperimentError, Peer, Trace};
 use crate::design::{self, PROBE_REL, PROBE_SECONDS, ResponseSource};
-use crate::experiment::{self, CompensationSettings, ExperimentError, Peer, Trace};
-use crate::fit::{
-    self, Averaging, DelaySearch, FitError, HostModel, LoopSearch, LoopShape, ModelSpec, OeOptions, Samples,
-    StructureSearch,
-};
+use crate::fit::{self, Averaging, DelaySearch, FitError, LoopSearch, OeOptions, Samples, StructureSearch};
+use crate::model::{HostModel, LoopShape, ModelSpec};
+use crate::signal::analysis;
 use boucwen_core::compensator::{HarmonicSpec, PhaseRule};
 use boucwen_sim::{Bimorph, Scenario, SimError};
 use rayon::prelude::*;
@@ -142,11 +140,11 @@ pub fn structure_records(scenario: &Scenario, drive_amplitude: f64) -> Result<[I
     // Structure and delay: a small broadband record, where the actuator is nearly linear.
     let n = (STRUCTURE_SECONDS / ts).round() as usize;
     let u =
-        experiment::multisine(STRUCTURE_AMPLITUDE * drive_amplitude, 1.0, (0.2 / ts).min(200.0), 40, ts, n);
+        closed_loop::multisine(STRUCTURE_AMPLITUDE * drive_amplitude, 1.0, (0.2 / ts).min(200.0), 40, ts, n);
     let y = Bimorph::new(&scenario.clone().with_seed(seed))?.run(&u)?;
     let n_loop = (LOOP_SECONDS / ts).round() as usize;
     let u_loop =
-        experiment::sine(drive_amplitude, LOOP_HZ, ts, n_loop).map_err(|e| SweepError::Core(LOOP_HZ, e))?;
+        closed_loop::sine(drive_amplitude, LOOP_HZ, ts, n_loop).map_err(|e| SweepError::Core(LOOP_HZ, e))?;
     let y_loop = Bimorph::new(&scenario.clone().with_seed(seed.wrapping_sub(1)))?.run(&u_loop)?;
     Ok([(u, y), (u_loop, y_loop)])
 }
@@ -509,7 +507,7 @@ pub fn identification_record(opts: &SweepOptions, index: usize) -> Result<InOut,
     let ts = opts.scenario.sampling.ts_s;
     let n = (opts.seconds / ts).round() as usize;
     let seed = opts.scenario.seed.wrapping_mul(1_000_003).wrapping_add(index as u64 * 16);
-    let u = experiment::sine(opts.drive_amplitude, f, ts, n).map_err(|e| SweepError::Core(f, e))?;
+    let u = closed_loop::sine(opts.drive_amplitude, f, ts, n).map_err(|e| SweepError::Core(f, e))?;
     let y = Bimorph::new(&opts.scenario.clone().with_seed(seed))?.run(&u)?;
     Ok((u, y))
 }
@@ -536,7 +534,7 @@ pub fn run_frequency(
     let id = identify_at(opts.harmonics, ts, structure, f, &u, &y).map_err(|e| SweepError::Fit(f, e))?;
 
     // 3. Compensation: α from eq. (25) on the identification record.
-    let alpha = experiment::eq25_amplitude(&u, &y);
+    let alpha = closed_loop::eq25_amplitude(&u, &y);
     let set = &opts.compensation;
     // The actuator's response at n·f for the cancellation (probed once per order).
     let mut probed: Vec<(u32, nalgebra::Complex<f64>)> = vec![];
@@ -563,10 +561,10 @@ pub fn run_frequency(
                 return Ok(vec![HarmonicSpec { order, response }]);
             }
         };
-        Ok(experiment::model_harmonics(model, &[order], f, ts, rule))
+        Ok(closed_loop::model_harmonics(model, &[order], f, ts, rule))
     };
     let tracking = |model: &HostModel, h: &[HarmonicSpec<f64>], run: u64| -> Result<Trace, SweepError> {
-        experiment::track(&mut plant(run)?, model, h, alpha, f, n, set)
+        closed_loop::track(&mut plant(run)?, model, h, alpha, f, n, set)
             .map_err(|e| SweepError::Experiment(f, e))
     };
     let finite = |x: f64| if x.is_finite() { x } else { f64::NAN };
@@ -589,7 +587,7 @@ pub fn run_frequency(
     samples += 2 * n + usize::from(n_rls > 0) * n + usize::from(n_oe > 0) * n;
     // The peers, tuned from the output-error extended model by the core's rule.
     let peer = |p: Peer, run: u64| -> Result<Trace, SweepError> {
-        experiment::track_peer(&mut plant(run)?, &id.ext_oe, p, alpha, f, n, set)
+        closed_loop::track_peer(&mut plant(run)?, &id.ext_oe, p, alpha, f, n, set)
             .map_err(|e| SweepError::Experiment(f, e))
     };
     let open = peer(Peer::OpenLoop, 6)?;

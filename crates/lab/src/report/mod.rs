@@ -3,12 +3,14 @@
 //! figures of the residual spectrum, the loops and the time series before and after), or for
 //! a periodic or multisine drive the output at the lines of whole periods.
 
-use crate::analysis;
+pub mod plot;
+
 use crate::diagnose::Diagnosis;
-use crate::periodic::PeriodicDiagnosis;
-use crate::plot::{Chart, Series};
+use crate::diagnose::periodic::PeriodicDiagnosis;
+use crate::experiments::sweep::{SweepResult, Traces};
 use crate::record::{RecordError, write_atomic};
-use crate::sweep::{SweepResult, Traces};
+use crate::report::plot::{Chart, Series};
+use crate::signal::analysis;
 use std::path::{Path, PathBuf};
 
 /// An output that could not be written.
@@ -84,7 +86,7 @@ pub fn write_sweep(result: &SweepResult, dir: &Path) -> Result<Vec<PathBuf>, Rep
     Ok(out.written)
 }
 
-fn col(result: &SweepResult, f: impl Fn(&crate::sweep::Row) -> f64) -> Vec<f64> {
+fn col(result: &SweepResult, f: impl Fn(&crate::experiments::sweep::Row) -> f64) -> Vec<f64> {
     result.rows.iter().map(f).collect()
 }
 
@@ -94,8 +96,8 @@ pub fn modelling_error(r: &SweepResult) -> Chart {
 }
 
 /// Fig. 10 from the rows of a sweep, simulated or measured.
-pub fn modelling_error_rows(rows: &[crate::sweep::Row]) -> Chart {
-    let col = |f: fn(&crate::sweep::Row) -> f64| -> Vec<f64> { rows.iter().map(f).collect() };
+pub fn modelling_error_rows(rows: &[crate::experiments::sweep::Row]) -> Chart {
+    let col = |f: fn(&crate::experiments::sweep::Row) -> f64| -> Vec<f64> { rows.iter().map(f).collect() };
     let x = col(|w| w.freq_hz);
     Chart::new("Modelling error (free run, held-out half)", "drive frequency (Hz)", "RMS error (µm)")
         .with(Series::line("extended, OE fit", x.clone(), col(|w| w.rms_extended_oe_um), 0).points())
@@ -110,7 +112,7 @@ pub fn modelling_error_rows(rows: &[crate::sweep::Row]) -> Chart {
 /// `modelling_error.svg` (Fig. 10), `summary.txt` (what changes with frequency, the records
 /// skipped and why) and `sweep.json`. Returns the files written.
 pub fn write_measured_sweep(
-    m: &crate::sweep_measured::MeasuredSweep,
+    m: &crate::experiments::sweep_measured::MeasuredSweep,
     dir: &Path,
 ) -> Result<Vec<PathBuf>, ReportError> {
     let mut out = Output::new(dir)?;
@@ -320,7 +322,7 @@ pub fn write_periodic(d: &PeriodicDiagnosis, source: &str, dir: &Path) -> Result
 /// mean at each line.
 pub fn periodic_lines(d: &PeriodicDiagnosis) -> Chart {
     let l = &d.lines[0];
-    let pick = |f: &dyn Fn(&crate::distortion::Line) -> bool| -> (Vec<f64>, Vec<f64>) {
+    let pick = |f: &dyn Fn(&crate::signal::distortion::Line) -> bool| -> (Vec<f64>, Vec<f64>) {
         l.lines.iter().filter(|x| f(x)).map(|x| (x.freq_hz, x.y.norm().max(1e-9))).unzip()
     };
     let (fe, ae) = pick(&|x| x.excited);

@@ -11,13 +11,13 @@
 //!    as a linear model (the actuator is nearly linear at small amplitude) and kept fixed
 //!    for what follows, as the sweep does; without one, the sine record alone sets it.
 //! 3. **The model.** The extended model with its input delay `τ` (fractional samples, up to
-//!    [`fit::MAX_DELAY`]) is fitted by output error on the first half of the first sine
+//!    [`crate::model::MAX_DELAY`]) is fitted by output error on the first half of the first sine
 //!    record at `f` (an invertible loop required), and its free run is judged on the second half:
 //!    `fit_pct = 100·(1 − ‖y − ŷ‖/‖y − ȳ‖)`. Every other record at `f` is a check: the
 //!    model's free run on it, the same percentage.
 //! 4. **Harmonics found.** The odd harmonics of `f` (3rd to 9th, below 0.45 of the sample
 //!    rate) whose amplitude in the fitted part of the output is at least
-//!    [`crate::sweep::MIN_HARMONIC_REL`] of the fundamental, the two largest, get
+//!    [`crate::experiments::sweep::MIN_HARMONIC_REL`] of the fundamental, the two largest, get
 //!    branches: the enhanced model fitted the same way is the *prediction model*, the best
 //!    account of the actuator the records give.
 //! 5. **α.** The amplitude asked for, else eq. (25) on the sine record.
@@ -49,14 +49,12 @@
 //! checks the format, the version and every value as the board will; a file that fails
 //! is refused whole, with the file and the field named.
 
-use crate::analysis;
+use crate::design::closed_loop;
 use crate::design::{self, ReferenceSpec, controller_params};
-use crate::experiment;
-use crate::fit::{
-    self, Averaging, DelaySearch, FitError, HostModel, LoopSearch, ModelSpec, OeOptions, Samples,
-    StructureSearch,
-};
+use crate::fit::{self, Averaging, DelaySearch, FitError, LoopSearch, OeOptions, Samples, StructureSearch};
+use crate::model::{HostModel, ModelSpec};
 use crate::record::Record;
+use crate::signal::analysis;
 use boucwen_core::compensator::{HarmonicSpec, PhaseRule, Saturation};
 use boucwen_core::model::{BoucWenParams, EnhancedParams, ExtendedParams, HarmonicBranch, Model};
 use boucwen_core::rls::RlsConfig;
@@ -127,7 +125,7 @@ impl Default for DesignOptions {
             amplitude_um: None,
             harmonics: HarmonicChoice::Auto,
             safety: SafetyParams::DEFAULT,
-            fade_s: experiment::FADE_IN_S,
+            fade_s: closed_loop::FADE_IN_S,
             predict_seconds: PREDICT_SECONDS,
         }
     }
@@ -499,7 +497,7 @@ fn sine_frequency(u: &[f64], ts: f64) -> Option<f64> {
 struct Stepper {
     model: Branches,
     /// The input delay: whole samples and the fraction (linear interpolation, as
-    /// [`fit::delayed`]).
+    /// [`crate::model::delayed`]).
     whole: usize,
     frac: f64,
     /// The last `whole + 2` inputs, newest last (zeros before the start).
@@ -514,7 +512,7 @@ enum Branches {
 
 impl Stepper {
     fn new(m: &HostModel, ts: f64) -> Result<Self, boucwen_core::Error> {
-        if !(m.delay >= 0.0 && m.delay <= fit::MAX_DELAY) {
+        if !(m.delay >= 0.0 && m.delay <= crate::model::MAX_DELAY) {
             return Err(boucwen_core::Error::OutOfRange("model delay (0 to 3 samples)"));
         }
         let whole = m.delay.floor() as usize;
@@ -713,7 +711,7 @@ pub fn design_from_records(records: &[Record], opts: &DesignOptions) -> Result<D
     }
     let ext = ext_fit.model;
     let held_out = |m: &HostModel| -> Result<(f64, f64), BoardDesignError> {
-        let sim = m.simulate(u, ts).map_err(fit_err)?;
+        let sim = m.simulate(u, ts).map_err(|e| fit_err(e.into()))?;
         Ok((fit_pct(&y[split..], &sim[split..]), analysis::rms_diff(&y[split..], &sim[split..])))
     };
     let (ext_pct, ext_rms) = held_out(&ext)?;
@@ -729,7 +727,7 @@ pub fn design_from_records(records: &[Record], opts: &DesignOptions) -> Result<D
             n >= 3
                 && n % 2 == 1
                 && n as f64 * f < 0.45 / ts
-                && amp >= crate::sweep::MIN_HARMONIC_REL * fundamental
+                && amp >= crate::experiments::sweep::MIN_HARMONIC_REL * fundamental
         })
         .collect();
     found.sort_by(|a, b| b.1.total_cmp(&a.1));
@@ -757,7 +755,7 @@ pub fn design_from_records(records: &[Record], opts: &DesignOptions) -> Result<D
         Some(a) => return Err(BoardDesignError::Option(format!("amplitude {a} µm: must be above 0"))),
         // A sensor counting the stroke downwards gives a negative α: the reference is a sine
         // of its size all the same (the inverse is odd in the output).
-        None => (experiment::eq25_amplitude(u, y).abs(), "eq25"),
+        None => (closed_loop::eq25_amplitude(u, y).abs(), "eq25"),
     };
     if alpha.is_nan() || alpha <= 0.0 {
         return Err(BoardDesignError::Record(
@@ -767,7 +765,7 @@ pub fn design_from_records(records: &[Record], opts: &DesignOptions) -> Result<D
     }
     let (u_min, u_max) = (opts.safety.u_min as f64, opts.safety.u_max as f64);
     let saturation = Saturation { u_min, u_max };
-    let settings = experiment::CompensationSettings::default();
+    let settings = closed_loop::CompensationSettings::default();
     let reference =
         ReferenceSpec { freq_hz: f, amplitude_um: alpha, fade_s: opts.fade_s, preview_samples: 0.0 };
     let params = |m: &HostModel, h: &[HarmonicSpec<f64>]| {
@@ -882,7 +880,7 @@ pub fn design_from_records(records: &[Record], opts: &DesignOptions) -> Result<D
             bw.a1
         )));
     }
-    let hspecs = experiment::model_harmonics(base, &cancel, f, ts, PhaseRule::Model);
+    let hspecs = closed_loop::model_harmonics(base, &cancel, f, ts, PhaseRule::Model);
     let final_params = params(base, &hspecs)?;
     // 8. The prediction.
     let designed = track(&final_params, &prediction, n, ts).map_err(BoardDesignError::Params)?;
@@ -920,7 +918,8 @@ pub fn design_from_records(records: &[Record], opts: &DesignOptions) -> Result<D
         } else if Some(i) == structure_i {
             ("structure", None)
         } else if at_f(i) {
-            let sim = ext.simulate(&r.u, ts).map_err(|e| BoardDesignError::Fit(r.source.clone(), e))?;
+            let sim =
+                ext.simulate(&r.u, ts).map_err(|e| BoardDesignError::Fit(r.source.clone(), e.into()))?;
             let skip = (r.len() / 10).min(2000);
             ("check", Some(fit_pct(&r.y[skip..], &sim[skip..])))
         } else {

@@ -6,8 +6,8 @@
 //! [`Controller`] (the compensator, [`Previewed`], or a [`Peer`]). [`closed_loop`] runs one
 //! on the other; a plant's error ends the run with the sample it failed at.
 
-use crate::analysis;
-use crate::fit::HostModel;
+use crate::model::HostModel;
+use crate::signal::analysis;
 use boucwen_core::Plant;
 use boucwen_core::compensator::{
     AnyCompensator, CompensatorConfig, HarmonicSpec, PhaseRule, Saturation, harmonic_response,
@@ -428,7 +428,7 @@ where
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::fit::Branch;
+    use crate::model::Branch;
     use boucwen_core::model::{BoucWenParams, ExtendedParams};
     use boucwen_core::plant::ModelPlant;
 

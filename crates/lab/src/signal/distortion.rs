@@ -6,7 +6,7 @@
 //! Schoukens, *System Identification: A Frequency Domain Approach*, 2nd ed., chs. 2–4):
 //!
 //! - **Whole periods in steady state.** The steady window (start-up transient left out,
-//!   [`crate::steady`]) is cut into `M` periods of `N` samples; line `k` is the frequency
+//!   [`crate::signal::steady`]) is cut into `M` periods of `N` samples; line `k` is the frequency
 //!   `k·f0`, `f0 = 1/(N·Ts)`. With a whole number of samples per period each period's DFT
 //!   gives the lines exactly; otherwise the lines are fitted jointly by least squares over
 //!   all the periods (no leakage between them) and each period's departure from that fit
@@ -30,7 +30,7 @@
 //!   realisation the distortion at an excited line is estimated from the non-excited lines
 //!   around it.
 
-use crate::analysis;
+use crate::signal::analysis;
 use rustfft::FftPlanner;
 use rustfft::num_complex::Complex;
 
@@ -376,7 +376,7 @@ pub fn bla(sets: &[Lines]) -> Vec<BlaLine> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::excitation::{Multisine, triangle};
+    use crate::signal::excitation::{Multisine, triangle};
 
     fn noise(seed: &mut u64) -> f64 {
         // Sum of uniforms: roughly normal, unit variance.

@@ -1,9 +1,9 @@
 //! `diagnose` for periodic drives that are not a sine (a triangle, a square) and for
 //! multisines: what the model gets wrong, seen at the lines of whole periods.
 //!
-//! 1. **Where.** Each record's steady window ([`crate::steady`]); the records given together
+//! 1. **Where.** Each record's steady window ([`crate::signal::steady`]); the records given together
 //!    are realisations of one drive (same period, same excited lines, new phases).
-//! 2. **The data** ([`crate::distortion`]): the excited lines, the best linear approximation
+//! 2. **The data** ([`crate::signal::distortion`]): the excited lines, the best linear approximation
 //!    with its noise and distortion levels, and the output at the lines the drive does not
 //!    excite: odd lines left out (odd distortion) and even lines (even distortion), each as
 //!    a level in dB above the noise with the band where single lines stand out.
@@ -14,7 +14,7 @@
 //!    residuals are measured at the same lines: what the hysteresis itself accounts for
 //!    shows there.
 //! 4. **Terms** beyond the extended model, each refined jointly with it
-//!    ([`crate::terms::refine`]): a cubic stiffening of the structure (odd) and a quadratic
+//!    ([`crate::fit::refine`]): a cubic stiffening of the structure (odd) and a quadratic
 //!    one (even, an asymmetric stiffness). A term is kept when it lowers the held-out RMS by
 //!    [`Thresholds::min_gain`] and either carries [`Thresholds::min_term_rel`] of the output's
 //!    RMS or removes [`NOISE_MULTIPLE`] times the noise floor from the held-out residual
@@ -34,12 +34,14 @@
 //! held-out error then tests the fit against noise, not against new phases (the summary
 //! says which it was).
 
-use crate::analysis;
 use crate::diagnose::{self, DiagnoseError, Finding, Kind, ModelCheck, Thresholds, instability};
-use crate::distortion::{self, BlaLine, Level, Line, Lines, Parity};
-use crate::fit::{self, DelaySearch, LoopSearch, ModelSpec, OeOptions, Samples};
-use crate::steady::{self, Drive, DriveKind, Window};
-use crate::terms::{Param, Stiffening, TermModel, refine};
+use crate::fit::refine;
+use crate::fit::{self, DelaySearch, LoopSearch, OeOptions, Samples};
+use crate::model::ModelSpec;
+use crate::model::terms::{Param, Stiffening, TermModel};
+use crate::signal::analysis;
+use crate::signal::distortion::{self, BlaLine, Level, Line, Lines, Parity};
+use crate::signal::steady::{self, Drive, DriveKind, Window};
 use rayon::prelude::*;
 
 /// One record of a periodic drive: its samples, its first sample's time and the window a
@@ -384,7 +386,7 @@ pub fn diagnose(
     )?
     .model;
     let extended = fit::fit_oe(u0, y0, ts, fit_end, &spec, &[], &opt)?.model;
-    let crit = crate::causes::criterion(&opt, fit_end, ts, crate::causes::REFINE_ITER);
+    let crit = crate::diagnose::causes::criterion(&opt, fit_end, ts, crate::diagnose::causes::REFINE_ITER);
     let mut symmetric = TermModel::from(extended.clone());
     symmetric.host.ext.bw.a0 = 0.0;
     let free: Vec<Param> = symmetric.host_params().into_iter().filter(|p| *p != Param::A0).collect();

@@ -16,10 +16,14 @@
 //!
 //! The rule that picks the cancelled harmonic ([`cancelled_harmonic`]) and the sources of
 //! the actuator's response at `n·f` ([`ResponseSource`], [`probe_response_on`]) are the
-//! same for `boucwen hil` and for every frequency of the sweep ([`crate::sweep`]).
+//! same for `boucwen hil` and for every frequency of the sweep ([`crate::experiments::sweep`]).
 
-use crate::fit::{self, Averaging, DelaySearch, FitError, HostModel, ModelSpec, OeOptions, Samples};
-use crate::{analysis, experiment};
+pub mod board;
+pub mod closed_loop;
+
+use crate::fit::{self, Averaging, DelaySearch, FitError, OeOptions, Samples};
+use crate::model::{HostModel, ModelSpec};
+use crate::signal::analysis;
 use boucwen_core::compensator::{HarmonicSpec, PhaseRule, Saturation};
 use boucwen_core::controllers::{OrcConfig, PiConfig};
 use boucwen_core::model::{BoucWenParams, ExtendedParams};
@@ -150,7 +154,7 @@ pub fn orc_params(pi: &PiConfig<f64>, orc: &OrcConfig<f64>) -> Result<OrcParams,
 }
 
 /// Smallest share of the error power a harmonic must hold to be chosen, for a model's
-/// branch ([`crate::sweep`]) and for the cancellation alike.
+/// branch ([`crate::experiments::sweep`]) and for the cancellation alike.
 pub const MIN_HARMONIC_SHARE: f64 = 0.2;
 /// Smallest amplitude of a harmonic the proposed law cancels, relative to `α`: a change of
 /// controller must be worth its side effects (the cancellation input passes through the
@@ -190,7 +194,7 @@ pub const PROBE_REL: f64 = 0.01;
 /// or reset, so that it answers `u_drive` with `y_drive`) runs `u_drive` plus a probe of
 /// amplitude `eps` at `order·f`; the difference from `y_drive` at that frequency over the
 /// second half, divided by the probe, is the response
-/// ([`experiment::probe_response`]).
+/// ([`closed_loop::probe_response`]).
 pub fn probe_response_on<P>(
     plant: &mut P,
     u_drive: &[f64],
@@ -204,10 +208,10 @@ where
     P::Error: StdError + Send + Sync + 'static,
 {
     let ts = plant.sample_interval_s();
-    let up = experiment::with_probe(u_drive, freq_hz, order, eps, ts)?;
+    let up = closed_loop::with_probe(u_drive, freq_hz, order, eps, ts)?;
     let mut yp = vec![0.0; up.len()];
     plant.run_into(&up, &mut yp).map_err(|e| DesignError::plant(&*plant, e))?;
-    Ok(experiment::probe_response(y_drive, &yp, freq_hz, order, eps, ts)?)
+    Ok(closed_loop::probe_response(y_drive, &yp, freq_hz, order, eps, ts)?)
 }
 
 /// Why a design failed.
@@ -319,7 +323,7 @@ where
 {
     let (f, ts) = (d.freq_hz, plant.sample_interval_s());
     let n = (d.seconds / ts).round() as usize;
-    let u = experiment::sine(d.amplitude_v, f, ts, n)?;
+    let u = closed_loop::sine(d.amplitude_v, f, ts, n)?;
     plant.reset().map_err(|e| DesignError::plant(&*plant, e))?;
     let mut y = vec![0.0; n];
     plant.run_into(&u, &mut y).map_err(|e| DesignError::plant(&*plant, e))?;
@@ -333,8 +337,8 @@ where
     };
     let model =
         fit::fit_oe(&u, &y, ts, n / 2, &ModelSpec::extended(f), &[], &opt).map_err(DesignError::Fit)?.model;
-    let alpha_um = experiment::eq25_amplitude(&u, &y);
-    let settings = experiment::CompensationSettings::default();
+    let alpha_um = closed_loop::eq25_amplitude(&u, &y);
+    let settings = closed_loop::CompensationSettings::default();
     let params = |h: &[HarmonicSpec<f64>]| {
         controller_params(
             &model.ext,
@@ -345,7 +349,7 @@ where
             ReferenceSpec {
                 freq_hz: f,
                 amplitude_um: alpha_um,
-                fade_s: experiment::FADE_IN_S,
+                fade_s: closed_loop::FADE_IN_S,
                 preview_samples: model.delay,
             },
             ts,
@@ -367,7 +371,7 @@ where
     let order = cancelled_harmonic(&tail[..m], f, ts, alpha_um);
     let harmonics: Vec<HarmonicSpec<f64>> = order
         .into_iter()
-        .flat_map(|o| experiment::model_harmonics(&model, &[o], f, ts, PhaseRule::Model))
+        .flat_map(|o| closed_loop::model_harmonics(&model, &[o], f, ts, PhaseRule::Model))
         .collect();
     Ok(BoardDesign { params: params(&harmonics)?, model, alpha_um, order })
 }

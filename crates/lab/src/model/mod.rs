@@ -1,0 +1,12 @@
+//! The models the host fits and simulates.
+//!
+//! | module | what |
+//! |---|---|
+//! | [`host`] | the paper's actuator as identified on the host: the extended model with branches, a drift polynomial and an input delay |
+//! | [`terms`] | terms around and inside it: saturation, delay, creep, stiffening |
+
+pub mod host;
+pub mod terms;
+
+pub use host::{Branch, HostModel, LoopShape, MAX_BRANCHES, MAX_DELAY, ModelError, ModelSpec, delayed};
+pub use terms::{TermModel, Terms};
