@@ -59,9 +59,9 @@
 //! harmonic the extended model imitates with its loop on the rest is not named: its branch
 //! gains under [`Thresholds::min_gain`], and a lower rule would not help, since on clipped
 //! records with no harmonic a branch tried after the clamp gains as much (up to 19 % in the
-//! batch, against 2–14 % on the records where a harmonic was hidden; see the README's
-//! "How often it is right"). The finding says on what share the diagnosis rests and which
-//! drive shows the whole loop.
+//! batch, against 2–14 % on the records where a harmonic was hidden; see the book's
+//! "How often it is right", `docs/book/src/diagnosis/accuracy.md`). The finding says on what
+//! share the diagnosis rests and which drive shows the whole loop.
 //!
 //! ## Thresholds
 //! The defaults ([`Thresholds::default`]) were set on records of the virtual bimorph with
@@ -71,7 +71,7 @@
 //! fundamental RMS; the term of the hidden effect carried 3.65 % or more in 95 % of the
 //! effect records (1.70 % at least), hence 2 %. Misses are mostly a hidden 3rd or 2nd
 //! harmonic the extended model imitates to within twice the noise floor, where no term can
-//! gain the 50 % the batch asks for (see the README for the shares).
+//! gain the 50 % the batch asks for (the shares: `docs/book/src/diagnosis/accuracy.md`).
 
 pub mod causes;
 pub mod periodic;
@@ -697,7 +697,8 @@ impl Diagnosis {
         out
     }
 
-    /// The JSON object of `boucwen diagnose --json` (see the README for every field):
+    /// The JSON object of `boucwen diagnose --json` (every field is in the book,
+    /// `docs/book/src/diagnosis/json-and-identify.md`):
     /// `drive_hz`, `window_s`, `window_why`, `drive`, `periods`, `noise_um`, `baseline
     /// {model, rms_um, fit_pct, stable}`, `findings [{kind, order (harmonics only), freq_hz,
     /// residual_share, cause, kept, term_rms_um}]` (most important first; kept terms before
@@ -1790,9 +1791,9 @@ fn diagnose_from(
         // A clamp of the drive acts before everything else (the loop, the structure, the
         // branches) and is tried against the baseline only: added after another term, whose
         // model was fitted without it, it reshapes the loop to imitate what that term's form
-        // leaves (the default actuator at 23 Hz, `docs/diagnose-23hz`: a clamp at 75 % of the
-        // drive's peak lowers the held-out RMS of the model with the 3rd harmonic's branch by
-        // 31 %, a saturation the actuator does not have).
+        // leaves (the default actuator at 23 Hz, `docs/book/src/figures/diagnose-23hz`: a clamp
+        // at 75 % of the drive's peak lowers the held-out RMS of the model with the 3rd
+        // harmonic's branch by 31 %, a saturation the actuator does not have).
         remaining.retain(|c| !(c.kind == Kind::Saturation && c.output_range.is_none()));
     }
     // The delay, from the step onto the drive: a record that holds the step (an idle part
