@@ -25,7 +25,8 @@
 //! only the new kinds whose name contains `PART` (e.g. `--only triangle`).
 
 use boucwen_lab::diagnose::periodic::Realisation;
-use boucwen_lab::diagnose::{self, Diagnosis, Kind, Thresholds};
+use boucwen_lab::diagnose::{self, Diagnosis, Kind};
+use boucwen_lab::rules::Rules;
 use boucwen_lab::fixtures::effects::{
     Nonlinearity, PeriodicCase, PeriodicDrive, SineCase, SineEffect, Truth,
 };
@@ -82,7 +83,7 @@ fn judge(case: &Case, d: &Diagnosis) -> (bool, String) {
 /// output's fundamental.
 fn carried(case: &Case, d: &Diagnosis) -> f64 {
     let out_rms = d.output_amplitude_um / std::f64::consts::SQRT_2;
-    let hidden = |t: &&diagnose::Trial| match case.effect {
+    let hidden = |t: &&diagnose::evidence::Trial| match case.effect {
         Effect::Clean => true,
         Effect::OddHarmonic(n) | Effect::EvenHarmonic(n) => t.round == 0 && t.candidate.order == Some(n),
         Effect::Drift => t.round == 0 && t.candidate.kind == Kind::Drift,
@@ -238,7 +239,7 @@ fn new_kinds(a: &Args) {
             }
             let recs: Vec<Realisation> =
                 records.iter().map(|r| Realisation { u: &r.u, y: &r.y, t0: r.t0, given: None }).collect();
-            let o = match diagnose::diagnose_drive(&recs, records[0].ts, &Thresholds::default()) {
+            let o = match diagnose::diagnose_drive(&recs, records[0].ts, &Rules::default()) {
                 Ok(o) => o,
                 Err(e) => return Ok((i, false, 0.0, format!("{} seed {seed}: no diagnosis: {e}", c.name()))),
             };
@@ -250,7 +251,7 @@ fn new_kinds(a: &Args) {
                 truth.iter().all(|t| found.iter().any(|f| truth_named(t, f.0, f.1)))
                     && found.first().is_some_and(|f| truth.iter().any(|t| truth_named(t, f.0, f.1)))
             };
-            let gain = o.json()["gain_pct"].as_f64().unwrap_or(0.0);
+            let gain = o.gain_pct();
             let line = format!(
                 "{:>18} seed {seed:>5}: {:?} -> {:?}, gain {gain:5.1}% {}",
                 c.name(),
@@ -322,7 +323,7 @@ fn old_kinds(a: &Args) {
                 std::fs::create_dir_all(dir).map_err(|e| format!("{}: {e}", dir.display()))?;
                 rec.write(&path).map_err(|e| e.to_string())?;
             }
-            match diagnose::diagnose(&rec.u, &rec.y, rec.ts, &Thresholds::default()) {
+            match diagnose::diagnose(&rec.u, &rec.y, rec.ts, &Rules::default()) {
                 Ok(d) => {
                     let (right, line) = judge(&case, &d);
                     Ok((effect, right, d.gain_pct(), line, carried(&case, &d)))

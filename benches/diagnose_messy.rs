@@ -13,7 +13,8 @@
 //! This is a measurement, not a test: it asserts nothing and exits 0 unless a record cannot
 //! be drawn.
 
-use boucwen_lab::diagnose::{self, Thresholds};
+use boucwen_lab::diagnose;
+use boucwen_lab::rules::Rules;
 use boucwen_lab::fixtures::messy::{Mess, Messy};
 use boucwen_lab::record::import_text;
 use rayon::prelude::*;
@@ -75,7 +76,7 @@ fn main() {
                 Err(e) => return Ok((mess, false, false, format!("{name}: {e}"))),
                 Ok(i) => {
                     let r = i.record;
-                    match diagnose::diagnose_record(&r.u, &r.y, r.ts, r.t0, None, &Thresholds::default()) {
+                    match diagnose::diagnose_record(&r.u, &r.y, r.ts, r.t0, None, &Rules::default()) {
                         Err(e) => return Ok((mess, false, false, format!("{name}: {e}"))),
                         Ok(d) => {
                             let right = m.is_right(&d);

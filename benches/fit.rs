@@ -12,7 +12,8 @@
 //! Before the timing, one run of each prints what it fitted or found.
 
 use boucwen_lab::design::closed_loop;
-use boucwen_lab::diagnose::{self, Thresholds};
+use boucwen_lab::diagnose;
+use boucwen_lab::rules::Rules;
 use boucwen_lab::fit::{self, Averaging, OeOptions};
 use boucwen_lab::fixtures::hidden::{Case, Effect};
 use boucwen_lab::model::ModelSpec;
@@ -30,11 +31,7 @@ fn fits(c: &mut Criterion) {
     let (u, y, ts) = (&rec.u, &rec.y, rec.ts);
     let split = u.len() / 2;
     let f = analysis::estimate_drive(u, ts).expect("drive");
-    let opt = OeOptions {
-        lm_starts: diagnose::TERM_STARTS,
-        averaging: Averaging::Periods,
-        ..diagnose::fit_options(split, ts)
-    };
+    let opt = OeOptions { averaging: Averaging::Periods, ..diagnose::plan::fit_options(split, ts, &Rules::default()) };
     let mut g = c.benchmark_group("fit/oe");
     g.sample_size(20).measurement_time(Duration::from_secs(10));
     for (id, spec) in
@@ -69,8 +66,8 @@ fn diagnoses(c: &mut Criterion) {
         Record::new("sine23", 0.0, ts, u, y, None).and_then(|r| r.write(&path)).expect("record");
         let run = || {
             let r = Record::read(&path).expect("read");
-            r.validate_for_fit(diagnose::MIN_SAMPLES).expect("valid");
-            diagnose::diagnose(&r.u, &r.y, r.ts, &Thresholds::default()).expect("diagnosis")
+            r.validate_for_fit(Rules::default().sine.min_samples).expect("valid");
+            diagnose::diagnose(&r.u, &r.y, r.ts, &Rules::default()).expect("diagnosis")
         };
         let t0 = std::time::Instant::now();
         let d = run();

@@ -14,6 +14,7 @@
 //! | [`model`] | the models the host fits and simulates: the paper's actuator (hysteresis at the drive, branches, drift, delay) and the terms around it |
 //! | [`fit`] | identification: the paper's RLS, output error, the joint refinement of terms |
 //! | [`diagnose`] | what a model gets wrong on a record, the cause, the term that fixes it |
+//! | [`identify`] | a model fitted on part of a record, tested on the rest |
 //! | [`design`] | an identified model to the board's parameters; the closed-loop runner; the board's design from measured records and the design file |
 //! | [`experiments`] | the virtual bimorph on a drive, the paper's sweep (Figs. 10 and 16), the sweep from measured records |
 //! | [`report`] | text, JSON, files, pages and SVG figures |
@@ -25,7 +26,9 @@ pub mod experiments;
 pub mod fit;
 #[cfg(feature = "fixtures")]
 pub mod fixtures;
+pub mod identify;
 pub mod model;
 pub mod record;
 pub mod report;
+pub mod rules;
 pub mod signal;

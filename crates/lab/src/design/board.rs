@@ -954,7 +954,7 @@ pub fn design_from_records(records: &[Record], opts: &DesignOptions) -> Result<D
             gamma: bw.gamma,
             beta: bw.beta,
             delay_samples: base.delay,
-            resonance_hz: crate::diagnose::resonance_hz(base.ext.ar, ts),
+            resonance_hz: crate::model::poles::resonance_hz(&base.ext.ar, ts),
             fit_pct: base_pct,
             held_out_rms_um: base_rms,
             checked_u_v: [lo_u, hi_u],

@@ -1,14 +1,14 @@
 //! The causes a sine diagnosis tries beyond harmonics and drift, and how each is fitted:
 //! saturation of the drive or of the output, creep, and an input delay (see
-//! [`crate::diagnose`] for how they enter the search, [`crate::model::terms`] for the model).
+//! [`crate::diagnose::sine`] for how they enter the search, [`crate::model::terms`] for the model).
 //!
 //! ## Evidence
 //! - **Saturation of the output** (a sensor's range, a mechanical stop): the output sits on
-//!   a plateau at its largest or smallest value ([`plateaus`]): at least [`PLATEAU_SHARE`]
+//!   a plateau at its largest or smallest value ([`plateaus`]): at least `causes.plateau_share`
 //!   of the samples within the noise of the extreme. The level is measured there.
 //! - **Saturation of the drive** (an amplifier's rails): the output's odd harmonics form a
 //!   series ([`clipping_series`]): at least two of the 3rd to 9th reach
-//!   [`SERIES_REL`] of the fundamental, as a flattened sine's do; a stiffening shaped by a
+//!   `causes.series_rel` of the fundamental, as a flattened sine's do; a stiffening shaped by a
 //!   resonance forces one harmonic mostly. The clamp's series enters before the structure,
 //!   whose resonance near one harmonic can raise it far above the rest and leave the others
 //!   rolled off below the mark: the output's harmonics taken back through the baseline's
@@ -26,34 +26,28 @@
 //! ## Fits
 //! A term whose model acts on the input only (a clamped drive, an extra delay) is fitted by
 //! [`crate::fit::fit_oe`] on the transformed input: the clamp's level on a grid
-//! ([`CLAMP_GRID`] of the drive's largest excursion), the best by its fitting error, then
+//! (`causes.clamp_grid` of the drive's largest excursion), the best by its fitting error, then
 //! refined with the rest of the model ([`crate::fit::refine`]). The host's delay is
 //! fitted with the clamp: the clamp puts harmonics into the drive whose phases against the
 //! fundamental the actuator's delay sets (a sampled actuator answers about a sample late),
 //! and a single sine's structure absorbs the delay at the fundamental only (on saturation
 //! seed 1008 of `crate::fixtures::effects` (feature `fixtures`) the fit at the true level leaves 0.21 µm with the delay
 //! at 0 and 0.039 µm with it fitted, the noise). The delay freed with the clamp may also
-//! carry what is not a clamp, so the clamp is kept only if it fits [`CLAMP_BEYOND_DELAY`]
+//! carry what is not a clamp, so the clamp is kept only if it fits `causes.clamp_beyond_delay`
 //! better than the model with the delay alone, and with a delay below
-//! [`MIN_DELAY_SAMPLES`] (a longer one is the delay term's, found from the step). A clamped
+//! `causes.min_delay_samples` (a longer one is the delay term's, found from the step). A clamped
 //! output is refined from the current model, from it enlarged, and from a fit to the output
 //! with its clipped samples filled in; creep from the current model.
 
-use crate::diagnose::{Candidate, Kind, Residual, ordinal};
+use super::evidence::{Candidate, Kind};
+use super::residual::Residual;
 use crate::fit::{self, Averaging, DelaySearch, FitError, OeOptions, Samples};
 use crate::fit::{Criterion, refine};
-use crate::model::terms::{Param, Relaxation, TermModel, Terms};
+use crate::model::terms::{Param, Relaxation, TermModel};
+use crate::rules::{CauseRules, Rules, TermRules};
 use crate::model::{Branch, HostModel, ModelSpec};
 use crate::signal::analysis::{self, Tone};
 use rayon::prelude::*;
-
-/// Share of the samples on a plateau at the output's extreme for a saturation of the output.
-pub const PLATEAU_SHARE: f64 = 0.05;
-/// A sample is on the plateau within this many times the noise floor of the extreme (or
-/// [`PLATEAU_REL`] of the output's range, if more).
-pub const PLATEAU_NOISE: f64 = 2.0;
-/// See [`PLATEAU_NOISE`].
-pub const PLATEAU_REL: f64 = 5e-4;
 
 /// The output's plateaus: the levels (µm) it sits at, top and bottom, and the share of the
 /// samples on them.
@@ -77,17 +71,17 @@ impl Plateaus {
 
 /// The plateaus of `y` (see the module docs); `noise_um` is its noise floor. `None` when
 /// it sits on neither extreme.
-pub fn plateaus(y: &[f64], noise_um: f64) -> Option<Plateaus> {
-    if y.len() < 16 {
+pub fn plateaus(y: &[f64], noise_um: f64, r: &CauseRules) -> Option<Plateaus> {
+    if y.len() < r.min_plateau_samples {
         return None;
     }
     let (lo, hi) = analysis::extent(y);
-    let eps = (PLATEAU_NOISE * noise_um).max(PLATEAU_REL * (hi - lo));
+    let eps = (r.plateau_noise * noise_um).max(r.plateau_rel * (hi - lo));
     let n = y.len() as f64;
     let on = |level: f64| {
         let at: Vec<f64> = y.iter().copied().filter(|v| (v - level).abs() <= eps).collect();
         let share = at.len() as f64 / n;
-        (share >= PLATEAU_SHARE).then(|| (analysis::mean(&at), share))
+        (share >= r.plateau_share).then(|| (analysis::mean(&at), share))
     };
     let top = on(hi);
     let bottom = on(lo);
@@ -101,23 +95,20 @@ pub fn plateaus(y: &[f64], noise_um: f64) -> Option<Plateaus> {
     })
 }
 
-/// A harmonic of a flattened sine counts in its series from this fraction of the
-/// fundamental.
-pub const SERIES_REL: f64 = 0.005;
-
 /// Whether the output's harmonics `out` (fundamental first) form a clipping series: at
-/// least two of the odd harmonics 3 to 9 reach [`SERIES_REL`] of the fundamental.
-pub fn clipping_series(out: &[Tone]) -> bool {
+/// least two of the odd harmonics `causes.series_orders` reach `causes.series_rel` of the
+/// fundamental.
+pub fn clipping_series(out: &[Tone], r: &CauseRules) -> bool {
     let Some(f1) = out.first().map(|t| t.amp).filter(|a| *a > 0.0) else { return false };
-    [3usize, 5, 7, 9].iter().filter(|&&n| out.get(n - 1).is_some_and(|t| t.amp >= SERIES_REL * f1)).count()
-        >= 2
+    let counts = |&n: &u32| out.get(n as usize - 1).is_some_and(|t| t.amp >= r.series_rel * f1);
+    r.series_orders.iter().filter(|n| counts(n)).count() >= 2
 }
 
 /// The output's harmonics `out` (fundamental first) as they were before the structure
 /// `G = 1/(1 − a1 z⁻¹ − a2 z⁻²)` (`ar`, sample interval `ts`): each divided by `G`'s gain at
 /// its frequency relative to the fundamental's. A clamped drive's series enters before the
 /// structure, which may raise one harmonic at its resonance far above the others and roll
-/// the rest off below [`SERIES_REL`].
+/// the rest off below `causes.series_rel`.
 pub fn before_structure(out: &[Tone], ar: [f64; 2], ts: f64) -> Vec<Tone> {
     let gain = |f_hz: f64| {
         let w = std::f64::consts::TAU * f_hz * ts;
@@ -134,7 +125,7 @@ pub fn before_structure(out: &[Tone], ar: [f64; 2], ts: f64) -> Vec<Tone> {
 /// noise floor), a clamp of the drive where its harmonics `out` form a series, creep where
 /// (or the same harmonics taken back through the baseline's structure `ar`, see
 /// [`before_structure`]), creep where
-/// the drive `u` holds a level of at least [`CREEP_LEVEL_REL`] of its amplitude `amp_v` away
+/// the drive `u` holds a level of at least `causes.creep_level_rel` of its amplitude `amp_v` away
 /// from the rest at 0 V (a step of level the creep follows; under a drive about 0 V the
 /// actuator's level does not change, and a slow trend is drift). A saturation's evidence is
 /// the RMS of the output's harmonics beyond the fundamental, creep's the trend's RMS.
@@ -145,6 +136,7 @@ pub fn candidates(
     noise_um: f64,
     (u, amp_v): (&[f64], f64),
     (ar, ts): ([f64; 2], f64),
+    r: &CauseRules,
 ) -> Vec<Candidate> {
     let power = (residual.rms_um * residual.rms_um).max(1e-300);
     let distortion = (out.iter().skip(1).map(|t| t.amp * t.amp / 2.0).sum::<f64>()).sqrt();
@@ -160,13 +152,13 @@ pub fn candidates(
         output_range,
     };
     let mut c = vec![];
-    if let Some(p) = plateaus(y, noise_um) {
+    if let Some(p) = plateaus(y, noise_um, r) {
         c.push(saturation(Some(p.range())));
     }
-    if clipping_series(out) || clipping_series(&before_structure(out, ar, ts)) {
+    if clipping_series(out, r) || clipping_series(&before_structure(out, ar, ts), r) {
         c.push(saturation(None));
     }
-    if analysis::mean(u).abs() >= CREEP_LEVEL_REL * amp_v {
+    if analysis::mean(u).abs() >= r.creep_level_rel * amp_v {
         c.push(Candidate {
             kind: Kind::Creep,
             order: None,
@@ -180,10 +172,6 @@ pub fn candidates(
     c
 }
 
-/// A drive whose mean is this fraction of its amplitude away from 0 V has moved the
-/// actuator's level: creep follows such a step.
-pub const CREEP_LEVEL_REL: f64 = 0.1;
-
 /// The spec a host model was fitted with: its drive, branches and drift degree.
 pub fn spec_of(host: &HostModel) -> ModelSpec {
     ModelSpec {
@@ -196,6 +184,7 @@ pub fn spec_of(host: &HostModel) -> ModelSpec {
 /// `model` with `spec`'s branches and drift degree (new weights and coefficients at 0),
 /// refined jointly (for a model whose terms act inside or after it, which
 /// [`crate::fit::fit_oe`] cannot fit), with its fitting cost.
+#[allow(clippy::too_many_arguments)]
 pub fn refine_with(
     model: &TermModel,
     spec: &ModelSpec,
@@ -204,6 +193,7 @@ pub fn refine_with(
     ts: f64,
     split: usize,
     opt: &OeOptions,
+    t: &TermRules,
 ) -> Option<(TermModel, f64)> {
     let mut m = model.clone();
     for &order in &spec.harmonics {
@@ -215,29 +205,20 @@ pub fn refine_with(
         m.host.drift.resize(d + 1, 0.0);
     }
     let free = m.host_params();
-    refine(&m, &free, u, y, ts, &criterion(opt, split, ts, REFINE_ITER))
+    refine(&m, &free, u, y, ts, &criterion(opt, split, ts, t))
 }
 
-/// The clamp levels tried, as fractions of the drive's largest excursion from 0 V.
-pub const CLAMP_GRID: [f64; 7] = [0.6, 0.7, 0.75, 0.8, 0.85, 0.9, 0.95];
-
-/// Longest stretch (s) from the fit's start-up the clamp's levels are fitted on: enough
-/// periods to average, and a cost that does not grow with the record (the refinement that
-/// follows runs on at most [`MAX_REFINE_S`]).
-pub const CLAMP_FIT_S: f64 = 10.0;
-
 /// The criterion of a refinement: `opt`'s samples from its start-up on, up to `split`, at
-/// most [`MAX_REFINE_S`] of them (`ts` the sample interval).
-pub fn criterion(opt: &OeOptions, split: usize, ts: f64, max_iter: usize) -> Criterion {
+/// most `terms.max_refine_s` of them (`ts` the sample interval), `terms.refine_iter`
+/// iterations.
+pub fn criterion(opt: &OeOptions, split: usize, ts: f64, t: &TermRules) -> Criterion {
     let end = match opt.samples {
         Samples::All => split,
         Samples::First(n) => n.min(split),
     };
-    Criterion { skip: opt.skip, end: end.min(opt.skip + (MAX_REFINE_S / ts).round() as usize), max_iter }
+    let end = end.min(opt.skip + (t.max_refine_s / ts).round() as usize);
+    Criterion { skip: opt.skip, end, max_iter: t.refine_iter }
 }
-
-/// Longest criterion of a refinement (s): each of its evaluations is a free run.
-pub const MAX_REFINE_S: f64 = 3.0;
 
 /// Fits `spec` to the input as `model`'s terms transform it (clamp, extra delay), keeping
 /// `model`'s own delay, from `model`'s host. Only for terms that act on the input.
@@ -284,11 +265,12 @@ fn fit_host_as(
     Ok((TermModel { host: f.model, terms: model.terms.clone() }, f.rms_fit))
 }
 
-/// The current model with its drive clamped: the level from [`CLAMP_GRID`] whose fit (on at
-/// most [`CLAMP_FIT_S`] of the fitted part, the host's delay fitted too) has the lowest
+/// The current model with its drive clamped: the level from `causes.clamp_grid` whose fit (on at
+/// most `causes.clamp_fit_s` of the fitted part, the host's delay fitted too) has the lowest
 /// fitting error, refined with the rest of the model (both levels and the delay free).
-/// `None` unless it fits [`CLAMP_BEYOND_DELAY`] better than the model with its delay fitted
-/// and no clamp, with a delay below [`MIN_DELAY_SAMPLES`] (see the module docs).
+/// `None` unless it fits `causes.clamp_beyond_delay` better than the model with its delay fitted
+/// and no clamp, with a delay below `causes.min_delay_samples` (see the module docs).
+#[allow(clippy::too_many_arguments)]
 pub fn fit_input_clamp(
     model: &TermModel,
     spec: &ModelSpec,
@@ -297,13 +279,16 @@ pub fn fit_input_clamp(
     ts: f64,
     split: usize,
     opt: &OeOptions,
+    rules: &Rules,
 ) -> Option<TermModel> {
     if !model.terms.input_only() || model.terms.input_clamp.is_some() {
         return None;
     }
+    let r = &rules.causes;
     let peak = u[..split].iter().fold(0.0f64, |m, v| m.max(v.abs()));
-    let o = capped(opt, ts);
-    let mut tried: Vec<(TermModel, f64)> = CLAMP_GRID
+    let o = capped(opt, ts, r);
+    let mut tried: Vec<(TermModel, f64)> = r
+        .clamp_grid
         .iter()
         .filter_map(|frac| {
             let mut m = model.clone();
@@ -314,10 +299,10 @@ pub fn fit_input_clamp(
     // The fitting error of a clamped drive has local minima in the level: refine the best
     // few levels of the grid and keep the best.
     tried.sort_by(|a, b| a.1.total_cmp(&b.1));
-    let c = criterion(opt, split, ts, REFINE_ITER);
+    let c = criterion(opt, split, ts, &rules.terms);
     let (clamped, cost) = tried
         .iter()
-        .take(CLAMP_STARTS)
+        .take(r.clamp_starts)
         .filter_map(|(m, _)| {
             let mut free = m.host_params();
             free.extend([Param::InputClamp(0), Param::InputClamp(1), Param::Delay]);
@@ -331,20 +316,15 @@ pub fn fit_input_clamp(
     let mut free = alone.host_params();
     free.push(Param::Delay);
     let delay_only = refine(&alone, &free, u, y, ts, &c).map_or(f64::INFINITY, |r| r.1);
-    // A delay of [`MIN_DELAY_SAMPLES`] or more is beyond a sampled actuator's own: the delay
-    // term's to find from the step onto the drive, not the clamp's to carry.
-    (clamped.host.delay < MIN_DELAY_SAMPLES && cost <= (1.0 - CLAMP_BEYOND_DELAY) * delay_only)
+    // A delay of `causes.min_delay_samples` or more is beyond a sampled actuator's own: the
+    // delay term's to find from the step onto the drive, not the clamp's to carry.
+    (clamped.host.delay < r.min_delay_samples && cost <= (1.0 - r.clamp_beyond_delay) * delay_only)
         .then_some(clamped)
 }
 
-/// A clamp of the drive must lower the fitting error by this fraction beyond the model with
-/// its delay fitted and no clamp (see [`fit_input_clamp`]): the share of a term's gain the
-/// diagnosis asks for by default ([`crate::diagnose::Thresholds`]' `min_gain`).
-pub const CLAMP_BEYOND_DELAY: f64 = 0.2;
-
-/// `opt` on at most [`CLAMP_FIT_S`] from its start-up.
-fn capped(opt: &OeOptions, ts: f64) -> OeOptions {
-    let cap = opt.skip + (CLAMP_FIT_S / ts).round() as usize;
+/// `opt` on at most `causes.clamp_fit_s` from its start-up.
+fn capped(opt: &OeOptions, ts: f64, r: &CauseRules) -> OeOptions {
+    let cap = opt.skip + (r.clamp_fit_s / ts).round() as usize;
     let samples = match opt.samples {
         Samples::First(n) => Samples::First(n.min(cap)),
         Samples::All => Samples::First(cap),
@@ -352,14 +332,9 @@ fn capped(opt: &OeOptions, ts: f64) -> OeOptions {
     OeOptions { samples, ..opt.clone() }
 }
 
-/// Levels of the grid a clamped drive is refined from.
-pub const CLAMP_STARTS: usize = 3;
-
-/// Levenberg–Marquardt iterations of a term's refinement.
-pub const REFINE_ITER: usize = 30;
-
 /// The current model with its output clamped at `range` (µm, measured on the plateaus),
 /// refined: samples where the model is beyond the range no longer pull the fit.
+#[allow(clippy::too_many_arguments)]
 pub fn fit_output_clamp(
     model: &TermModel,
     range: [f64; 2],
@@ -368,6 +343,7 @@ pub fn fit_output_clamp(
     ts: f64,
     split: usize,
     opt: &OeOptions,
+    rules: &Rules,
 ) -> Option<TermModel> {
     if model.terms.output_clamp.is_some() {
         return None;
@@ -376,11 +352,11 @@ pub fn fit_output_clamp(
     // may have bent to imitate the clipping's harmonics: from it, from it enlarged (its loop
     // scaled, see [`scaled`]) so that the clamp acts, and from a fit to the output with the
     // clipped samples filled in ([`unclipped_fit`]), the best fit.
-    let c = criterion(opt, split, ts, REFINE_ITER);
+    let c = criterion(opt, split, ts, &rules.terms);
     let mut starts: Vec<HostModel> =
-        OUTPUT_CLAMP_SCALES.iter().filter_map(|&k| scaled(&model.host, k, u, ts)).collect();
+        rules.causes.output_clamp_scales.iter().filter_map(|&k| scaled(&model.host, k, u, ts)).collect();
     if model.terms.input_only() {
-        starts.extend(unclipped_fit(model, range, u, y, ts, split, opt));
+        starts.extend(unclipped_fit(model, range, u, y, ts, split, opt, &rules.causes));
     }
     starts
         .into_iter()
@@ -397,8 +373,9 @@ pub fn fit_output_clamp(
 /// A fit (with the structure search) of `model`'s host to the output with the samples on the
 /// plateaus of `range` filled in: on a plateau the output is at least as far out as the
 /// plateau, so a sample there takes the model's value where the model is beyond it. From the
-/// model enlarged by the largest of [`OUTPUT_CLAMP_SCALES`] (on at most [`CLAMP_FIT_S`] of
+/// model enlarged by the largest of `causes.output_clamp_scales` (on at most `causes.clamp_fit_s` of
 /// the fitted part). `None` if a fit fails.
+#[allow(clippy::too_many_arguments)]
 pub fn unclipped_fit(
     model: &TermModel,
     range: [f64; 2],
@@ -407,11 +384,12 @@ pub fn unclipped_fit(
     ts: f64,
     split: usize,
     opt: &OeOptions,
+    r: &CauseRules,
 ) -> Option<HostModel> {
     let [lo, hi] = range;
     let (ymin, ymax) = analysis::extent(y);
-    let tol = PLATEAU_REL * (ymax - ymin);
-    let largest = OUTPUT_CLAMP_SCALES[OUTPUT_CLAMP_SCALES.len() - 1];
+    let tol = r.plateau_rel * (ymax - ymin);
+    let largest = r.output_clamp_scales.iter().copied().fold(f64::NEG_INFINITY, f64::max);
     let m = TermModel { host: scaled(&model.host, largest, u, ts)?, terms: model.terms.clone() };
     let sim = m.simulate(u, ts).ok()?;
     let filled: Vec<f64> = y
@@ -427,12 +405,9 @@ pub fn unclipped_fit(
             }
         })
         .collect();
-    let m = fit_host(&m, &spec_of(&m.host), u, &filled, ts, split, &capped(opt, ts)).ok()?.0;
+    let m = fit_host(&m, &spec_of(&m.host), u, &filled, ts, split, &capped(opt, ts, r)).ok()?.0;
     Some(m.host)
 }
-
-/// The scales of the starts of a clamp of the output (see [`fit_output_clamp`]).
-pub const OUTPUT_CLAMP_SCALES: [f64; 3] = [1.0, 1.25, 1.6];
 
 /// `host` with its output about its mean on `u` scaled by `k`: the gain `A1`, the branches'
 /// weights and the hysteresis `h` (A and A0 times `k`, γ and β divided by it, which scales
@@ -459,8 +434,10 @@ pub fn scaled(host: &HostModel, k: f64, u: &[f64], ts: f64) -> Option<HostModel>
     Some(h)
 }
 
-/// Creep states: two relaxations (started as below), their time constants kept between [`MIN_CREEP_TAU_S`] (or ten drive periods) and four
-/// times the fitted span, fitted over the whole fitted part.
+/// Creep states: two relaxations (started as below), their time constants kept between
+/// `causes.min_creep_tau_s` (or `causes.creep_tau_min_periods` drive periods) and
+/// `causes.creep_tau_max_spans` times the fitted span, fitted over the whole fitted part.
+#[allow(clippy::too_many_arguments)]
 pub fn fit_creep(
     model: &TermModel,
     u: &[f64],
@@ -468,22 +445,25 @@ pub fn fit_creep(
     ts: f64,
     split: usize,
     opt: &OeOptions,
+    rules: &Rules,
 ) -> Option<TermModel> {
     if !model.terms.creep.is_empty() {
         return None;
     }
+    let r = &rules.causes;
     let span_s = (split - opt.skip.min(split)) as f64 * ts;
-    let lo = MIN_CREEP_TAU_S.max(10.0 / model.host.drive_hz.max(1e-9));
-    let hi = 4.0 * span_s;
+    let lo = r.min_creep_tau_s.max(r.creep_tau_min_periods / model.host.drive_hz.max(1e-9));
+    let hi = r.creep_tau_max_spans * span_s;
     if hi <= lo {
         return None;
     }
-    // From no creep, and from a creep of [`CREEP_START_GAIN`] per state with time constants
-    // of an eighth and a half, or a half and twice, the fitted span (the model's loop can
+    // From no creep, and from a creep of `causes.creep_start_gain` per state with the time
+    // constants of `causes.creep_start_taus` (of the fitted span) (the model's loop can
     // imitate a relaxation by ratcheting under a drive with a level, a local optimum the
     // refinement from no creep may not leave); the best fit is kept.
-    let c = Criterion { skip: opt.skip, end: split, max_iter: REFINE_ITER };
-    let starts = [([0.125, 0.5], 0.0), ([0.125, 0.5], CREEP_START_GAIN), ([0.5, 2.0], CREEP_START_GAIN)];
+    let c = Criterion { skip: opt.skip, end: split, max_iter: rules.terms.refine_iter };
+    let [short, long] = r.creep_start_taus;
+    let starts = [(short, 0.0), (short, r.creep_start_gain), (long, r.creep_start_gain)];
     starts
         .iter()
         .filter_map(|&(taus, gain)| {
@@ -522,23 +502,6 @@ pub fn fit_creep(
         .map(|r| r.0)
 }
 
-/// The second start of the creep's gains.
-pub const CREEP_START_GAIN: f64 = 0.05;
-
-/// Shortest creep time constant (s).
-pub const MIN_CREEP_TAU_S: f64 = 0.1;
-
-/// Longest input delay looked for (whole samples).
-pub const MAX_DELAY_SHIFT: usize = 20;
-
-/// Length of the delay's criterion after the step onto the drive (s): the start-up and a
-/// few periods.
-pub const DELAY_WINDOW_S: f64 = 1.0;
-
-/// Levenberg–Marquardt starts of each whole delay's fit in [`delay_scan`] (it ranks the
-/// delays; the best is refined).
-pub const DELAY_SCAN_STARTS: usize = 2;
-
 /// A delay found from the start-up.
 #[derive(Clone, Debug)]
 pub struct DelayScan {
@@ -558,20 +521,11 @@ pub struct DelayScan {
     pub window_s: f64,
 }
 
-/// Smallest delay named as a finding (samples): a sampled actuator answers about one sample
-/// after the paper's instantaneous `A1·u[k]` from its zero-order hold (half a sample) and
-/// its driver and transport (the virtual bimorph: 1.1 samples), which the extended model's
-/// structure absorbs at one frequency; a delay of two samples or more is beyond that.
-pub const MIN_DELAY_SAMPLES: f64 = 2.0;
-
-/// The extended model keeps a delay if its held-out error with the delay is at most this
-/// factor of the error without it.
-pub const DELAY_HELD_OUT_SLACK: f64 = 1.1;
-
 /// Fits `spec` (with `model`'s input-side terms) over the step onto the drive and the
-/// [`DELAY_WINDOW_S`] after it, for every other whole delay `0..=`[`MAX_DELAY_SHIFT`] and the
+/// `causes.delay_window_s` after it, for every other whole delay `0..=``causes.max_delay_shift` and the
 /// two beside the best of those, refines the best with a fractional delay, and returns it with the fit without a delay (see the
 /// module docs). `None` if no fit succeeds.
+#[allow(clippy::too_many_arguments)]
 pub fn delay_scan(
     model: &TermModel,
     spec: &ModelSpec,
@@ -580,17 +534,19 @@ pub fn delay_scan(
     ts: f64,
     split: usize,
     opt: &OeOptions,
+    rules: &Rules,
 ) -> Option<DelayScan> {
     if !model.terms.input_only() {
         return None;
     }
-    let end = split.min(1 + (DELAY_WINDOW_S / ts).round() as usize);
+    let r = &rules.causes;
+    let end = split.min(1 + (r.delay_window_s / ts).round() as usize);
     let o = OeOptions {
         skip: 1,
         samples: Samples::First(end),
         averaging: Averaging::Off,
         delay: DelaySearch::Fixed(0.0),
-        lm_starts: DELAY_SCAN_STARTS,
+        lm_starts: r.delay_scan_starts,
         ..opt.clone()
     };
     let fit_at = |shift: usize| {
@@ -603,12 +559,12 @@ pub fn delay_scan(
     };
     // Every other whole delay, then the two beside the best of those.
     let mut fits: Vec<(TermModel, f64)> =
-        (0..=MAX_DELAY_SHIFT).step_by(2).collect::<Vec<_>>().into_par_iter().filter_map(fit_at).collect();
+        (0..=r.max_delay_shift).step_by(2).collect::<Vec<_>>().into_par_iter().filter_map(fit_at).collect();
     let coarse_best = fits.iter().min_by(|a, b| a.1.total_cmp(&b.1))?.0.terms.extra_delay;
     let beside: Vec<usize> = [coarse_best.checked_sub(1), Some(coarse_best + 1)]
         .into_iter()
         .flatten()
-        .filter(|&s| s <= MAX_DELAY_SHIFT && s % 2 == 1)
+        .filter(|&s| s <= r.max_delay_shift && s % 2 == 1)
         .collect();
     fits.extend(beside.into_par_iter().filter_map(fit_at).collect::<Vec<_>>());
     let (no_delay, without) = fits.iter().find(|f| f.0.terms.extra_delay == 0).cloned()?;
@@ -619,7 +575,7 @@ pub fn delay_scan(
     start.host.delay = if best.terms.extra_delay > 0 { 1.0 } else { 0.0 };
     let mut free = start.host_params();
     free.push(Param::Delay);
-    let c = Criterion { skip: 1, end, max_iter: REFINE_ITER };
+    let c = Criterion { skip: 1, end, max_iter: rules.terms.refine_iter };
     let (model, with) = match refine(&start, &free, u, y, ts, &c) {
         Some((m, r)) if r < at_best => (m, r),
         _ => (best, at_best),
@@ -637,12 +593,8 @@ pub fn delay_scan(
     })
 }
 
-/// Share of the output's swing a drive kept within a sensor's range leaves to spare on each
-/// side ([`drive_within_range`]).
-pub const RANGE_MARGIN: f64 = 0.1;
-
 /// The fraction `k < 1` of the drive's swing with which the output would stay inside the
-/// range of `model`'s output clamp, with [`RANGE_MARGIN`] of the swing to spare on each side:
+/// range of `model`'s output clamp, with `causes.range_margin` of the swing to spare on each side:
 /// the drive a record should be measured with so that the sensor sees the whole loop. The
 /// model, its clamp removed, is simulated under the record's drive `u`; from sample `from`
 /// on, its excursion on each clamped side, measured from the middle of its swing, is scaled
@@ -651,7 +603,7 @@ pub const RANGE_MARGIN: f64 = 0.1;
 /// loop fitted at one amplitude need not hold (a fit outside the Bouc–Wen model's bounded
 /// class holds only the amplitude it was fitted at). `None` without an output clamp, or when
 /// the model's output stays inside already.
-pub fn drive_within_range(model: &TermModel, u: &[f64], ts: f64, from: usize) -> Option<f64> {
+pub fn drive_within_range(model: &TermModel, u: &[f64], ts: f64, from: usize, r: &CauseRules) -> Option<f64> {
     let [lo, hi] = model.terms.output_clamp?;
     let mut open = model.clone();
     open.terms.output_clamp = None;
@@ -664,7 +616,7 @@ pub fn drive_within_range(model: &TermModel, u: &[f64], ts: f64, from: usize) ->
     let centre = 0.5 * (a + b);
     let half = 0.5 * (b - a);
     // The half-swing each side allows, the margin of the whole swing kept free.
-    let room = |limit: f64| (limit - centre).abs() / (1.0 + 2.0 * RANGE_MARGIN);
+    let room = |limit: f64| (limit - centre).abs() / (1.0 + 2.0 * r.range_margin);
     let mut k: f64 = 1.0;
     if b > hi {
         k = k.min(room(hi) / half);
@@ -675,127 +627,6 @@ pub fn drive_within_range(model: &TermModel, u: &[f64], ts: f64, from: usize) ->
     (k < 1.0 && k > 0.0).then_some(k)
 }
 
-/// The cause of a saturation in words, and its level: a clamped drive (the levels in V of
-/// `u`, the series of odd harmonics it puts in the output `out`) or a clamped output (the
-/// level in µm and the share of the steady output `y` on it; `noise_um` its noise floor).
-/// `step` says what the term did to the held-out RMS.
-pub fn explain_saturation(
-    terms: &Terms,
-    c: &Candidate,
-    step: &str,
-    out: &[Tone],
-    y: &[f64],
-    noise_um: f64,
-    within_range: Option<(f64, f64)>,
-) -> (String, Option<(f64, &'static str)>) {
-    match (c.output_range, terms.input_clamp) {
-        (Some(range), _) => {
-            let p = plateaus(y, noise_um);
-            let big = crate::record::Y_LIMIT_UM;
-            let sides: Vec<String> = [(range[1], "above"), (range[0], "below")]
-                .iter()
-                .filter(|(v, _)| v.abs() < big)
-                .map(|(v, side)| format!("{v:.3} µm (nothing {side} it)"))
-                .collect();
-            let level = if range[1] < big { range[1] } else { range[0] };
-            let share = p.map_or(0.0, |p| p.share);
-            let advice = within_range.map_or(String::new(), |(k, amp)| {
-                format!(
-                    "; the rest of this diagnosis rests on the {:.0} % of the samples inside the range: a record \
-                     driven with at most {:.3} V of amplitude ({:.0} % of this drive) keeps the model's output inside \
-                     it and shows the whole loop",
-                    100.0 * (1.0 - share),
-                    k * amp,
-                    100.0 * k
-                )
-            });
-            (
-                format!(
-                    "saturation of the output: it sits flat at {} in {:.0} % of the samples, a sensor's range or a \
-                     mechanical stop; the model should not be fitted across it: with the output clamped there the \
-                     samples beyond it no longer pull the fit; {step}{advice}",
-                    sides.join(" and "),
-                    100.0 * share
-                ),
-                Some((level, "µm")),
-            )
-        }
-        (None, Some([lo, hi])) => {
-            let f1 = out.first().map_or(0.0, |t| t.amp).max(1e-300);
-            let series: Vec<String> = [3usize, 5, 7, 9]
-                .iter()
-                .filter_map(|&n| {
-                    out.get(n - 1).map(|t| format!("{} {:.1} %", ordinal(n as u32), 100.0 * t.amp / f1))
-                })
-                .collect();
-            (
-                format!(
-                    "saturation of the drive: the actuator stops following it beyond {lo:.3} V and {hi:.3} V of u \
-                     (an amplifier's rails; the level at which the model's drive, clamped, fits best), which puts a \
-                     series of odd harmonics in the output ({}); the model should not be fitted across it: with the \
-                     drive clamped there, {step}",
-                    series.join(", ")
-                ),
-                Some((hi.abs().max(lo.abs()), "V")),
-            )
-        }
-        (None, None) => (format!("saturation: {step}"), None),
-    }
-}
-
-/// The cause of creep in words: its relaxations, and the trend of the baseline's residual
-/// it replaces. `step` says what the term did to the held-out RMS.
-pub fn explain_creep(terms: &Terms, residual: &Residual, step: &str) -> String {
-    let states: Vec<String> = terms
-        .creep
-        .iter()
-        .filter(|c| c.gain > 0.0)
-        .map(|c| format!("{:.2} s ({:.1} % of the deflection the drive asks for)", c.tau_s, 100.0 * c.gain))
-        .collect();
-    format!(
-        "creep: the output relaxes slowly after the drive, with time constants {}; the baseline's residual holds a \
-         slow part of {:.3} µm RMS (mean {:.3} µm, slope {:.4} µm/s) that follows the drive's history rather than a \
-         straight line; {step}",
-        if states.is_empty() { "none left after the fit".to_string() } else { states.join(" and ") },
-        residual.trend_rms_um,
-        residual.trend_mean_um,
-        residual.trend_slope_um_per_s,
-    )
-}
-
-/// The cause of an input delay in words: the delay, its gain on the start-up, and the held-out
-/// RMS of the extended model without and (if it was kept) with it.
-pub fn explain_delay(
-    scan: &DelayScan,
-    ts: f64,
-    held_out_before_um: f64,
-    held_out_after_um: Option<f64>,
-) -> String {
-    let gain = 100.0 * (1.0 - scan.rms_with_um / scan.rms_without_um.max(1e-300));
-    let held = match held_out_after_um {
-        Some(a) => format!(
-            "the extended model carries it: held-out RMS {a:.4} µm ({held_out_before_um:.4} µm without)"
-        ),
-        None => format!(
-            "it is not added to the extended model: with it the held-out RMS would rise above {:.0} % of its \
-             {held_out_before_um:.4} µm",
-            100.0 * DELAY_HELD_OUT_SLACK
-        ),
-    };
-    format!(
-        "input delay: the output answers the step onto the drive {:.1} samples ({:.2} ms) after the drive, beyond \
-         the {MIN_DELAY_SAMPLES:.0} samples a sampled actuator's hold and driver explain; a single sine cannot tell \
-         a delay from the structure's phase (the model absorbs it by moving its resonance), but the step excites \
-         every frequency: fitted over the start-up and the first {:.1} s with the delay, the model's RMS error \
-         there falls from {:.4} to {:.4} µm ({gain:.0}%); {held}",
-        scan.samples,
-        1e3 * scan.samples * ts,
-        scan.window_s,
-        scan.rms_without_um,
-        scan.rms_with_um,
-    )
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -804,9 +635,10 @@ mod tests {
     fn a_clipped_output_sits_on_plateaus_a_sine_does_not() {
         let y: Vec<f64> =
             (0..5000).map(|k| 10.0 * (std::f64::consts::TAU * 0.023 * k as f64).sin()).collect();
-        assert_eq!(plateaus(&y, 0.01), None);
+        let r = CauseRules::default();
+        assert_eq!(plateaus(&y, 0.01, &r), None);
         let clipped: Vec<f64> = y.iter().map(|v| v.min(8.0)).collect();
-        let p = plateaus(&clipped, 0.01).unwrap();
+        let p = plateaus(&clipped, 0.01, &r).unwrap();
         assert_eq!(p.top, Some(8.0));
         assert_eq!(p.bottom, None);
         assert!((p.share - 0.205).abs() < 0.01, "{}", p.share);
@@ -823,14 +655,14 @@ mod tests {
         let ts = 1e-3;
         let x = flattened_sine(10.0, ts);
         let h = analysis::harmonics(&x, 10.0, ts, 9);
-        assert!(clipping_series(&h), "{:?}", h.iter().map(|t| t.amp).collect::<Vec<_>>());
+        assert!(clipping_series(&h, &CauseRules::default()), "{:?}", h.iter().map(|t| t.amp).collect::<Vec<_>>());
         let pure: Vec<f64> = (0..4000)
             .map(|k| {
                 let th = std::f64::consts::TAU * 10.0 * k as f64 * ts;
                 th.sin() + 0.1 * (3.0 * th).sin()
             })
             .collect();
-        assert!(!clipping_series(&analysis::harmonics(&pure, 10.0, ts, 9)));
+        assert!(!clipping_series(&analysis::harmonics(&pure, 10.0, ts, 9), &CauseRules::default()));
     }
 
     #[test]
@@ -858,6 +690,6 @@ mod tests {
         for (b, d) in back.iter().zip(&drive) {
             assert!((b.amp - d.amp).abs() <= 1e-9 * (1.0 + d.amp), "{} vs {}", b.amp, d.amp);
         }
-        assert!(clipping_series(&back));
+        assert!(clipping_series(&back, &CauseRules::default()));
     }
 }

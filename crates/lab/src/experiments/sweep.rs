@@ -178,7 +178,7 @@ pub fn structure_from(
         ..OeOptions::default()
     };
     let fit = fit::fit_oe(u, y, ts, u.len(), &ModelSpec::extended(1.0), &[], &opt).map_err(err)?;
-    let resonance_hz = crate::diagnose::resonance_hz(fit.model.ext.ar, ts);
+    let resonance_hz = crate::model::poles::resonance_hz(&fit.model.ext.ar, ts);
     // The loop: a quasi-static sine at the drive amplitude, with that structure and delay.
     let loop_opt = OeOptions {
         samples: Samples::First(loop_fit),

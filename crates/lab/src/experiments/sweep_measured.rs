@@ -28,6 +28,7 @@
 
 use crate::experiments::sweep::{self, CSV_HEADER, HarmonicChoice, Row, Structure, SweepError};
 use crate::record::Record;
+use crate::rules::Rules;
 use crate::signal::analysis;
 use crate::signal::steady::{self, DriveKind};
 use rayon::prelude::*;
@@ -197,7 +198,7 @@ pub fn records_in(dir: &Path) -> Result<Vec<PathBuf>, MeasuredError> {
 fn steps_of(input: MeasuredInput) -> Vec<MeasuredInput> {
     let Ok(r) = &input.record else { return vec![input] };
     let n = r.u.len().min(r.y.len());
-    let segments = steady::sine_segments(&r.u[..n], r.ts);
+    let segments = steady::sine_segments(&r.u[..n], r.ts, &Rules::default());
     if segments.len() < 2 {
         return vec![input];
     }
@@ -239,7 +240,8 @@ fn classify(input: MeasuredInput) -> Result<Classified, Skipped> {
     let skip = |why: String| Skipped { name: name.clone(), why };
     let r = input.record.map_err(&skip)?;
     r.validate_for_fit(MIN_SAMPLES).map_err(|e| skip(e.to_string()))?;
-    let (w, drive) = steady::steady_window(&r.u, &r.y, r.ts, None).map_err(|e| skip(e.to_string()))?;
+    let rules = Rules::default();
+    let (w, drive) = steady::steady_window(&r.u, &r.y, r.ts, None, &rules).map_err(|e| skip(e.to_string()))?;
     // A sine from where its steady drive starts to where it stops (the record's end if the
     // window was only cut to whole periods); a broadband record whole, as the structure fit
     // takes it (its steady window is a stretch of uniform level, not where it starts).
@@ -253,7 +255,7 @@ fn classify(input: MeasuredInput) -> Result<Classified, Skipped> {
         _ => (r.u[w.drive_on..end].to_vec(), r.y[w.drive_on..end].to_vec()),
     };
     if drive.kind != DriveKind::None {
-        steady::check_response(&r.u[w.start..w.end], &r.y[w.start..w.end], r.ts, &drive)
+        steady::check_response(&r.u[w.start..w.end], &r.y[w.start..w.end], r.ts, &drive, &rules)
             .map_err(|e| skip(e.to_string()))?;
     }
     let role = match drive.kind {

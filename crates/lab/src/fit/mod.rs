@@ -85,6 +85,8 @@ use std::sync::{Arc, Mutex};
 
 /// Longest start-up simulated before the scored periods (s).
 pub const MAX_WARMUP_S: f64 = 10.0;
+/// The start-up lasts until the AR part's transient has decayed to this.
+const DECAY_TO: f64 = 1e-4;
 /// Fewest samples scored against the average period.
 pub const MIN_WINDOW_SAMPLES: usize = 500;
 
@@ -303,33 +305,6 @@ fn fit_oe_signed(
     Ok(fit)
 }
 
-/// AR coefficients of a resonance at `f_hz` with damping ratio `zeta` at interval `ts`.
-fn resonance_ar(f_hz: f64, zeta: f64, ts: f64) -> [f64; 2] {
-    let w = std::f64::consts::TAU * f_hz * ts;
-    if zeta < 1.0 {
-        let r = (-zeta * w).exp();
-        [2.0 * r * (w * (1.0 - zeta * zeta).sqrt()).cos(), -r * r]
-    } else {
-        let s = (zeta * zeta - 1.0).sqrt();
-        let (r1, r2) = ((-(zeta - s) * w).exp(), (-(zeta + s) * w).exp());
-        [r1 + r2, -r1 * r2]
-    }
-}
-
-/// Samples for the AR part's transient to decay to 10⁻⁴ (its largest pole's modulus).
-fn decay_samples(ar: [f64; 2]) -> usize {
-    let [a1, a2] = ar;
-    let disc = a1 * a1 + 4.0 * a2;
-    let r = if disc < 0.0 { (-a2).sqrt() } else { 0.5 * (a1.abs() + disc.sqrt()) };
-    if r.is_nan() || r <= 0.0 {
-        return 0;
-    }
-    if r >= 1.0 {
-        return usize::MAX;
-    }
-    ((1e-4f64).ln() / r.ln()).ceil().min(1e9) as usize
-}
-
 /// How the scored window is placed.
 enum Scoring {
     /// `[skip, end)`.
@@ -344,7 +319,7 @@ impl Scoring {
         match *self {
             Scoring::Samples(w) => w,
             Scoring::Periods { min_warmup, max_warmup, len } => {
-                let from = decay_samples(phi.ar).max(min_warmup).min(max_warmup);
+                let from = crate::model::poles::decay_samples(&phi.ar, DECAY_TO).max(min_warmup).min(max_warmup);
                 Window { from, to: from + len }
             }
         }
@@ -465,7 +440,7 @@ fn fit_once(
         None => (0..16)
             .flat_map(|i| {
                 let f_r = 5.0 * (nyq * 0.9 / 5.0f64).powf(i as f64 / 15.0);
-                [0.01, 0.03, 0.1, 0.3, 1.0, 3.0].map(|zeta| resonance_ar(f_r, zeta, ts))
+                [0.01, 0.03, 0.1, 0.3, 1.0, 3.0].map(|zeta| crate::model::poles::ar2_of(f_r, zeta, ts))
             })
             .collect(),
     };

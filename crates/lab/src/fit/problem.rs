@@ -18,7 +18,8 @@
 use super::options::{MIN_SLOPE, Outer, Param, operating_slope};
 use crate::model::MAX_DELAY;
 use crate::model::{HostModel, ModelSpec};
-use boucwen_core::model::{BoucWenParams, ExtendedParams, HarmonicBranch, ar_is_stable};
+use crate::model::poles;
+use boucwen_core::model::{BoucWenParams, ExtendedParams, HarmonicBranch};
 use boucwen_core::signal::{Oscillator, sin_cos};
 use nalgebra::{DMatrix, DVector};
 
@@ -131,7 +132,7 @@ impl<'a> Problem<'a> {
     /// an unstable, degenerate or (when required) non-invertible model.
     pub fn eval(&self, phi: &Outer, win: Window, free: Option<&[Param]>) -> Option<Eval> {
         let [a1, a2] = phi.ar;
-        if !ar_is_stable(&phi.ar) || !(0.0..=MAX_DELAY).contains(&phi.delay) {
+        if !poles::stable(&phi.ar) || !(0.0..=MAX_DELAY).contains(&phi.delay) {
             return None;
         }
         debug_assert!(win.from >= self.target_from && win.to <= self.target_from + self.target.len());

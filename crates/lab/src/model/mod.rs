@@ -4,8 +4,10 @@
 //! |---|---|
 //! | [`host`] | the paper's actuator as identified on the host: the extended model with branches, a drift polynomial and an input delay |
 //! | [`terms`] | terms around and inside it: saturation, delay, creep, stiffening |
+//! | [`poles`] | the poles of a linear part: stability, resonance, decay |
 
 pub mod host;
+pub mod poles;
 pub mod terms;
 
 pub use host::{Branch, HostModel, LoopShape, MAX_BRANCHES, MAX_DELAY, ModelError, ModelSpec, delayed};

@@ -40,7 +40,7 @@
 //! ([`crate::fit::refine`]).
 
 use super::{HostModel, MAX_DELAY, ModelError, delayed};
-use boucwen_core::model::ar_is_stable;
+use super::poles;
 use boucwen_core::signal::{Oscillator, sin_cos};
 
 /// A first-order relaxation state of the creep term.
@@ -314,7 +314,7 @@ impl TermModel {
     /// Whether the parameters are admissible: a stable structure, a delay in `[0, 3]`,
     /// positive creep time constants, finite values.
     pub(crate) fn admissible(&self, free: &[Param]) -> bool {
-        ar_is_stable(&self.host.ext.ar)
+        poles::stable(&self.host.ext.ar)
             && (0.0..=MAX_DELAY).contains(&self.host.delay)
             && self.terms.creep.iter().all(|c| c.tau_s > 0.0)
             && free.iter().all(|&p| self.get(p).is_finite())

@@ -3,12 +3,15 @@
 //! figures of the residual spectrum, the loops and the time series before and after), or for
 //! a periodic or multisine drive the output at the lines of whole periods.
 
+pub mod diagnosis;
+pub mod identify;
 pub mod plot;
 
 use crate::diagnose::Diagnosis;
 use crate::diagnose::periodic::PeriodicDiagnosis;
 use crate::experiments::sweep::{SweepResult, Traces};
 use crate::record::{RecordError, write_atomic};
+use crate::rules::Rules;
 use crate::report::plot::{Chart, Series};
 use crate::signal::analysis;
 use std::path::{Path, PathBuf};
@@ -197,6 +200,7 @@ pub fn write_diagnosis(
     y: &[f64],
     source: &str,
     dir: &Path,
+    rules: &Rules,
 ) -> Result<Vec<PathBuf>, ReportError> {
     let figures = [
         ("residual_spectrum.svg", residual_spectrum(d, y).to_svg()),
@@ -204,7 +208,7 @@ pub fn write_diagnosis(
         ("time_series.svg", diagnosis_time_series(d, y).to_svg()),
         ("residual.svg", diagnosis_residual(d, y).to_svg()),
     ];
-    write_page(dir, source, &d.summary(source), &figures, &d.json())
+    write_page(dir, source, &diagnosis::sine_text(d, source, rules), &figures, &diagnosis::sine_json(d, rules))
 }
 
 /// A diagnosis page in `dir`: `index.html` (the report `summary` of `source` and the
@@ -255,7 +259,7 @@ pub fn residual_spectrum(d: &Diagnosis, y: &[f64]) -> Chart {
     .with(Series::line(format!("baseline: {}", d.baseline.name()), f0, a0, 0))
     .with(Series::line(format!("extended: {}", d.model.name()), f1, a1, 1))
     .log_y();
-    let top = (12.0 * d.drive_hz).max(d.resonance_hz.unwrap_or(0.0) * 1.5).min(0.5 / d.ts);
+    let top = (12.0 * d.drive_hz).max(d.resonance_hz().unwrap_or(0.0) * 1.5).min(0.5 / d.ts);
     c.x_range = Some((0.0, top));
     c
 }
@@ -313,9 +317,14 @@ pub fn diagnosis_residual(d: &Diagnosis, y: &[f64]) -> Chart {
 /// terminal report and the figures), `diagnosis.json`, `lines.svg` (the output at the
 /// excited lines, the odd lines left out and the even lines, with the noise, for the first
 /// realisation). Returns the files written.
-pub fn write_periodic(d: &PeriodicDiagnosis, source: &str, dir: &Path) -> Result<Vec<PathBuf>, ReportError> {
+pub fn write_periodic(
+    d: &PeriodicDiagnosis,
+    source: &str,
+    dir: &Path,
+    rules: &Rules,
+) -> Result<Vec<PathBuf>, ReportError> {
     let figures = [("lines.svg", periodic_lines(d).to_svg())];
-    write_page(dir, source, &d.summary(source), &figures, &d.json())
+    write_page(dir, source, &diagnosis::periodic_text(d, source, rules), &figures, &diagnosis::periodic_json(d))
 }
 
 /// The output's lines (first realisation): excited, odd left out, even, and the noise of the

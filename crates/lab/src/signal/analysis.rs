@@ -42,6 +42,15 @@ pub fn extent(x: &[f64]) -> (f64, f64) {
     x.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &v| (a.min(v), b.max(v)))
 }
 
+/// The fit percentage `100·(1 − ‖y − ŷ‖/‖y − ȳ‖)`: 100 % a perfect model, 0 % no better
+/// than the mean, negative worse; `NaN` for a constant `y`.
+pub fn fit_pct(y: &[f64], yhat: &[f64]) -> f64 {
+    let m = mean(y);
+    let den = y.iter().map(|v| (v - m) * (v - m)).sum::<f64>().sqrt();
+    let num = y.iter().zip(yhat).map(|(a, b)| (a - b) * (a - b)).sum::<f64>().sqrt();
+    if den > 0.0 { 100.0 * (1.0 - num / den) } else { f64::NAN }
+}
+
 /// Mean.
 pub fn mean(x: &[f64]) -> f64 {
     if x.is_empty() { 0.0 } else { x.iter().sum::<f64>() / x.len() as f64 }

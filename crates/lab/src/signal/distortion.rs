@@ -13,16 +13,16 @@
 //!   gives the noise.
 //! - **Noise.** The mean over the periods is the line's value; the sample variance over the
 //!   periods divided by `M` is the noise variance of that mean ([`Line::noise_var`]).
-//! - **Excited lines** are those where the drive's line reaches [`EXCITED_REL`] of its
-//!   largest and stands [`EXCITED_SNR_DB`] above the drive's own noise. The others are
+//! - **Excited lines** are those where the drive's line reaches `periodic.excited_rel` of its
+//!   largest and stands `periodic.excited_snr_db` above the drive's own noise. The others are
 //!   **non-excited**: at an even line, output there comes from an even nonlinearity (an
 //!   asymmetry); at an odd line (an odd multisine's lines left out), from an odd one (a
 //!   stiffening, a symmetric hysteresis loop).
 //! - **Level** of a set of lines: `10·log10(Σ|Y(k)|² / Σσ²(k))`, the power at those lines
 //!   over the power the noise alone would put there, in dB (0 dB: noise only, since the
-//!   mean's power holds its noise variance). A level of [`DETECT_DB`] or more over at
-//!   least [`MIN_LINES`] lines is distortion; the **band** is where single lines stand
-//!   [`LINE_DB`] above their noise.
+//!   mean's power holds its noise variance). A level of `periodic.detect_db` or more over at
+//!   least `periodic.min_lines` lines is distortion; the **band** is where single lines stand
+//!   `periodic.line_db` above their noise.
 //! - **BLA.** `G(k) = Y(k)/U(k)` at the excited lines, averaged over realisations; its noise
 //!   variance from the period-to-period variation, and with two or more realisations its
 //!   total variance from the realisation-to-realisation variation; their difference is the
@@ -30,26 +30,11 @@
 //!   realisation the distortion at an excited line is estimated from the non-excited lines
 //!   around it.
 
+use crate::rules::{PeriodicRules, Rules};
 use crate::signal::analysis;
+use crate::signal::steady::whole_periods_in;
 use rustfft::FftPlanner;
 use rustfft::num_complex::Complex;
-
-/// A line is excited when the drive's amplitude there reaches this fraction of its largest
-/// line.
-pub const EXCITED_REL: f64 = 1e-3;
-/// …and stands this far above the drive's own noise at that line (dB).
-pub const EXCITED_SNR_DB: f64 = 20.0;
-/// A set of non-excited lines holds distortion when its level is at least this (dB above
-/// the noise).
-pub const DETECT_DB: f64 = 6.0;
-/// A single line counts in the band of a distortion when it stands this far above its noise
-/// (dB).
-pub const LINE_DB: f64 = 10.0;
-/// Fewest lines for a level.
-pub const MIN_LINES: usize = 3;
-/// Highest line analysed without a whole number of samples per period (the joint fit grows
-/// with the square of the lines).
-pub const MAX_FITTED_LINES: u32 = 60;
 
 /// One line of a record: the drive's and the output's complex amplitudes (mean over the
 /// periods; `amp·e^{jφ}` of `amp·cos(2π k f0 t + φ)` from the first analysed sample) and
@@ -85,18 +70,21 @@ pub struct Lines {
     pub lines: Vec<Line>,
 }
 
+/// A period within this fraction of a whole number of samples is one.
+const WHOLE_SAMPLES: f64 = 1e-9;
+
 /// Complex amplitudes of the lines `1..=kmax` of each period of `x` (whole periods of
 /// `period` samples from sample 0): the mean over the periods and the noise variance of the
 /// mean. `None` with fewer than two periods.
-fn period_lines(x: &[f64], period: f64, kmax: u32) -> Option<(Vec<Complex<f64>>, Vec<f64>)> {
-    let m = ((x.len() as f64 + 0.49) / period).floor() as usize;
+fn period_lines(x: &[f64], period: f64, kmax: u32, r: &Rules) -> Option<(Vec<Complex<f64>>, Vec<f64>)> {
+    let m = whole_periods_in(x.len(), period, r.drive.period_slack_samples);
     if m < 2 || kmax == 0 {
         return None;
     }
     let n_int = period.round() as usize;
     let kmax = kmax as usize;
     let mut per: Vec<Vec<Complex<f64>>> = Vec::with_capacity(m);
-    if (period - n_int as f64).abs() < 1e-9 * period {
+    if (period - n_int as f64).abs() < WHOLE_SAMPLES * period {
         // Whole samples per period: each period's DFT.
         let fft = FftPlanner::new().plan_fft_forward(n_int);
         for p in 0..m {
@@ -109,7 +97,7 @@ fn period_lines(x: &[f64], period: f64, kmax: u32) -> Option<(Vec<Complex<f64>>,
     } else {
         // A period between samples: the lines fitted jointly over all the periods, then each
         // period's departure from that fit projected on the lines.
-        let kmax = kmax.min(MAX_FITTED_LINES as usize).min((period / 2.0).floor() as usize - 1);
+        let kmax = kmax.min(r.periodic.max_fitted_lines as usize).min((period / 2.0).floor() as usize - 1);
         let len = (m as f64 * period).round() as usize;
         let w = std::f64::consts::TAU / period;
         let mean = joint_fit(&x[..len], w, kmax)?;
@@ -184,16 +172,16 @@ fn joint_fit(x: &[f64], w: f64, kmax: usize) -> Option<Vec<Complex<f64>>> {
 /// The lines `1..=kmax` of the drive `u` and the output `y` (whole periods of `period`
 /// samples from sample 0, at interval `ts`), with the excited lines marked. `None` with
 /// fewer than two periods.
-pub fn lines(u: &[f64], y: &[f64], period: f64, ts: f64, kmax: u32) -> Option<Lines> {
+pub fn lines(u: &[f64], y: &[f64], period: f64, ts: f64, kmax: u32, r: &Rules) -> Option<Lines> {
     let n = u.len().min(y.len());
-    let (um, uv) = period_lines(&u[..n], period, kmax)?;
-    let (ym, yv) = period_lines(&y[..n], period, kmax)?;
+    let (um, uv) = period_lines(&u[..n], period, kmax, r)?;
+    let (ym, yv) = period_lines(&y[..n], period, kmax, r)?;
     let top = um.iter().map(|c| c.norm()).fold(0.0, f64::max);
     let f0 = 1.0 / (period * ts);
     let lines = (0..um.len().min(ym.len()))
         .map(|i| {
             let a = um[i].norm();
-            let excited = a >= EXCITED_REL * top && a * a >= db_ratio(EXCITED_SNR_DB) * uv[i];
+            let excited = a >= r.periodic.excited_rel * top && a * a >= db_ratio(r.periodic.excited_snr_db) * uv[i];
             Line {
                 k: i as u32 + 1,
                 freq_hz: (i + 1) as f64 * f0,
@@ -205,7 +193,7 @@ pub fn lines(u: &[f64], y: &[f64], period: f64, ts: f64, kmax: u32) -> Option<Li
             }
         })
         .collect();
-    Some(Lines { f0_hz: f0, period, periods: ((n as f64 + 0.49) / period).floor() as usize, lines })
+    Some(Lines { f0_hz: f0, period, periods: whole_periods_in(n, period, r.drive.period_slack_samples), lines })
 }
 
 fn db_ratio(db: f64) -> f64 {
@@ -249,20 +237,20 @@ pub struct Level {
     pub lines: usize,
     /// RMS of the lines (µm): `√(Σ|Y|²/2)`.
     pub rms_um: f64,
-    /// The band `[lo, hi]` (Hz) of the lines that stand [`LINE_DB`] above their noise, if any.
+    /// The band `[lo, hi]` (Hz) of the lines that stand `periodic.line_db` above their
+    /// noise, if any.
     pub band_hz: Option<[f64; 2]>,
+    /// Whether the lines hold distortion: `periodic.detect_db` over at least
+    /// `periodic.min_lines` lines.
+    pub detected: bool,
 }
 
-impl Level {
-    /// Whether the lines hold distortion: [`DETECT_DB`] over at least [`MIN_LINES`] lines.
-    pub fn detected(&self) -> bool {
-        self.lines >= MIN_LINES && self.db >= DETECT_DB
-    }
-}
+/// Lines of realisations within this many Hz are one line.
+const SAME_LINE_HZ: f64 = 1e-9;
 
 /// The level of `lines` (their output `y` against their noise), pooled over realisations:
 /// `sets` holds each realisation's lines.
-pub fn level(sets: &[&[Line]]) -> Level {
+pub fn level(sets: &[&[Line]], r: &PeriodicRules) -> Level {
     let (mut p, mut v, mut count) = (0.0, 0.0, 0usize);
     let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
     let mut per_line: Vec<(f64, f64, f64)> = vec![];
@@ -276,19 +264,22 @@ pub fn level(sets: &[&[Line]]) -> Level {
     }
     // A line's band membership from its power summed over realisations.
     per_line.sort_by(|a, b| a.0.total_cmp(&b.0));
-    for chunk in per_line.chunk_by(|a, b| (a.0 - b.0).abs() < 1e-9) {
+    for chunk in per_line.chunk_by(|a, b| (a.0 - b.0).abs() < SAME_LINE_HZ) {
         let (pp, vv) = chunk.iter().fold((0.0, 0.0), |(a, b), l| (a + l.1, b + l.2));
-        if pp >= db_ratio(LINE_DB) * vv.max(1e-300) {
+        if pp >= db_ratio(r.line_db) * vv.max(1e-300) {
             lo = lo.min(chunk[0].0);
             hi = hi.max(chunk[0].0);
         }
     }
-    let r = sets.len().max(1) as f64;
+    let realisations = sets.len().max(1) as f64;
+    let db = if count > 0 { to_db(p / v.max(1e-300)) } else { f64::NAN };
+    let lines = count / sets.len().max(1);
     Level {
-        db: if count > 0 { to_db(p / v.max(1e-300)) } else { f64::NAN },
-        lines: count / sets.len().max(1),
-        rms_um: (p / r / 2.0).sqrt(),
+        db,
+        lines,
+        rms_um: (p / realisations / 2.0).sqrt(),
         band_hz: (lo <= hi).then_some([lo, hi]),
+        detected: lines >= r.min_lines && db >= r.detect_db,
     }
 }
 
@@ -298,11 +289,12 @@ pub fn non_excited(l: &Lines, parity: Parity, k_top: u32) -> Vec<Line> {
 }
 
 /// The lines where odd and even distortion are looked for: up to three times the highest
-/// excited line (a cubic term's reach) and below 0.45 of the sample rate.
-pub fn distortion_top(l: &Lines, ts: f64) -> u32 {
+/// excited line (`periodic.distortion_top_factor`: a cubic term's reach) and below
+/// `drive.nyquist_fraction` of the sample rate.
+pub fn distortion_top(l: &Lines, ts: f64, r: &Rules) -> u32 {
     let top = l.lines.iter().filter(|x| x.excited).map(|x| x.k).max().unwrap_or(1);
-    let nyq = (0.45 / ts / l.f0_hz).floor() as u32;
-    (3 * top).min(nyq).min(l.lines.len() as u32)
+    let nyq = (r.drive.nyquist_fraction / ts / l.f0_hz).floor() as u32;
+    (r.periodic.distortion_top_factor * top).min(nyq).min(l.lines.len() as u32)
 }
 
 /// The drive excites only odd lines (a symmetric triangle, an odd multisine): its even
@@ -332,17 +324,18 @@ pub struct BlaLine {
 
 /// The BLA at the excited lines common to every realisation (see the module docs). With
 /// one realisation the distortion variance at a line is the mean output power of the
-/// non-excited lines (both parities) within five lines of it, over `|U|²`.
-pub fn bla(sets: &[Lines]) -> Vec<BlaLine> {
+/// non-excited lines (both parities) within `periodic.bla_neighbour_lines` of it, over
+/// `|U|²`.
+pub fn bla(sets: &[Lines], r: &PeriodicRules) -> Vec<BlaLine> {
     let Some(first) = sets.first() else { return vec![] };
-    let r = sets.len();
+    let n_sets = sets.len();
     let mut out = vec![];
     for (i, l0) in first.lines.iter().enumerate() {
         if !sets.iter().all(|s| s.lines.get(i).is_some_and(|l| l.excited)) {
             continue;
         }
         let gs: Vec<Complex<f64>> = sets.iter().map(|s| s.lines[i].y / s.lines[i].u).collect();
-        let g = gs.iter().sum::<Complex<f64>>() / r as f64;
+        let g = gs.iter().sum::<Complex<f64>>() / n_sets as f64;
         let noise_var = sets
             .iter()
             .map(|s| {
@@ -351,14 +344,14 @@ pub fn bla(sets: &[Lines]) -> Vec<BlaLine> {
                 l.noise_var / u2 + l.y.norm_sqr() * l.u_noise_var / (u2 * u2)
             })
             .sum::<f64>()
-            / (r * r) as f64;
+            / (n_sets * n_sets) as f64;
         let total_var =
-            (r >= 2).then(|| gs.iter().map(|x| (x - g).norm_sqr()).sum::<f64>() / ((r - 1) * r) as f64);
+            (n_sets >= 2).then(|| gs.iter().map(|x| (x - g).norm_sqr()).sum::<f64>() / ((n_sets - 1) * n_sets) as f64);
         let distortion_var = match total_var {
-            Some(t) => (t - noise_var).max(0.0) * r as f64,
+            Some(t) => (t - noise_var).max(0.0) * n_sets as f64,
             None => {
                 let near: Vec<&Line> =
-                    first.lines.iter().filter(|x| !x.excited && x.k.abs_diff(l0.k) <= 5).collect();
+                    first.lines.iter().filter(|x| !x.excited && x.k.abs_diff(l0.k) <= r.bla_neighbour_lines).collect();
                 if near.is_empty() {
                     0.0
                 } else {
@@ -376,6 +369,9 @@ pub fn bla(sets: &[Lines]) -> Vec<BlaLine> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use std::sync::LazyLock;
+
+    static R: LazyLock<Rules> = LazyLock::new(Rules::default);
     use crate::signal::excitation::{Multisine, triangle};
 
     fn noise(seed: &mut u64) -> f64 {
@@ -412,14 +408,14 @@ mod tests {
             [(0.0, 0.0, false, false), (0.0, 0.1, true, false), (0.1, 0.0, false, true)]
         {
             let y = system(&u, a2, a3, 1e-3, 3);
-            let l = lines(&u[512..], &y[512..], 512.0, ts, 200).unwrap();
+            let l = lines(&u[512..], &y[512..], 512.0, ts, 200, &R).unwrap();
             assert!(odd_drive(&l));
             assert_eq!(l.lines.iter().filter(|x| x.excited).count(), ms.lines.len());
-            let top = distortion_top(&l, ts);
-            let lo = level(&[&non_excited(&l, Parity::Odd, top)]);
-            let le = level(&[&non_excited(&l, Parity::Even, top)]);
+            let top = distortion_top(&l, ts, &R);
+            let lo = level(&[&non_excited(&l, Parity::Odd, top)], &R.periodic);
+            let le = level(&[&non_excited(&l, Parity::Even, top)], &R.periodic);
             assert_eq!(
-                (lo.detected(), le.detected()),
+                (lo.detected, le.detected),
                 (odd, even),
                 "a2 {a2} a3 {a3}: odd {lo:?} even {le:?}"
             );
@@ -437,10 +433,10 @@ mod tests {
             .map(|r| {
                 let u = ms.realisation(100 + r).signal(1.0, 10);
                 let y = system(&u, 0.0, 0.0, 1e-2, 7 + r);
-                lines(&u[400..], &y[400..], 400.0, ts, 100).unwrap()
+                lines(&u[400..], &y[400..], 400.0, ts, 100, &R).unwrap()
             })
             .collect();
-        let g = bla(&sets);
+        let g = bla(&sets, &R.periodic);
         assert_eq!(g.len(), ms.lines.len());
         for b in &g {
             let z = Complex::from_polar(1.0, -std::f64::consts::TAU * f64::from(b.k) / 400.0);
@@ -469,16 +465,16 @@ mod tests {
             })
             .collect();
         let y = system(&u, 0.0, 0.05, 1e-3, 11);
-        let l = lines(&u, &y, period, ts, 40).unwrap();
+        let l = lines(&u, &y, period, ts, 40, &R).unwrap();
         assert!(odd_drive(&l), "{:?}", l.lines.iter().filter(|x| x.excited).map(|x| x.k).collect::<Vec<_>>());
-        let le = level(&[&non_excited(&l, Parity::Even, 40)]);
-        assert!(!le.detected(), "{le:?}");
+        let le = level(&[&non_excited(&l, Parity::Even, 40)], &R.periodic);
+        assert!(!le.detected, "{le:?}");
         let y2 = system(&u, 0.05, 0.05, 1e-3, 11);
-        let l2 = lines(&u, &y2, period, ts, 40).unwrap();
-        assert!(level(&[&non_excited(&l2, Parity::Even, 40)]).detected());
+        let l2 = lines(&u, &y2, period, ts, 40, &R).unwrap();
+        assert!(level(&[&non_excited(&l2, Parity::Even, 40)], &R.periodic).detected);
         // The integer-period path agrees with the triangle generator.
         let t = triangle(1.0, 100, 1000);
-        let lt = lines(&t, &t, 100.0, ts, 10).unwrap();
+        let lt = lines(&t, &t, 100.0, ts, 10, &R).unwrap();
         // (The sampled triangle's line 1 holds its aliased harmonics 99, 101, …: 1e-4 of it.)
         assert!((lt.lines[0].u.norm() - 8.0 / std::f64::consts::PI.powi(2)).abs() < 1e-3);
     }

@@ -8,32 +8,32 @@
 //! ## The drive ([`classify`])
 //! On the steady part of `u` (mean removed):
 //! - [`DriveKind::None`]: its standard deviation is below
-//!   [`crate::record::MIN_EXCITATION_STD_V`], or it has no oscillating
+//!   `drive.min_std_v`, or it has no oscillating
 //!   component;
 //! - [`DriveKind::Sine`]: the dominant line `f` holds at least half of the variance, `f` and
-//!   its harmonics at least [`HARMONIC_SHARE`], and the harmonic distortion
-//!   `√(Σ_{k≥2} A_k²)/A_1` is at most [`SINE_MAX_THD`] (a sine with some distortion of its
+//!   its harmonics at least `drive.harmonic_share`, and the harmonic distortion
+//!   `√(Σ_{k≥2} A_k²)/A_1` is at most `drive.sine_max_thd` (a sine with some distortion of its
 //!   own: an amplifier's);
 //! - [`DriveKind::Periodic`]: the same with more distortion (a triangle, a square), or a
 //!   repeating waveform whose lowest line holds at least half of the variance;
 //! - [`DriveKind::Multisine`]: `u` repeats with a period found by its autocorrelation (at
-//!   least [`PERIODIC_CORRELATION`] at one period), the average period holds at least
-//!   [`HARMONIC_SHARE`] of the variance, and at least three lines are excited (amplitude at
-//!   least [`EXCITED_LINE_REL`] of the largest), none holding half of the variance;
+//!   least `drive.periodic_correlation` at one period), the average period holds at least
+//!   `drive.harmonic_share` of the variance, and at least three lines are excited (amplitude at
+//!   least `drive.excited_line_rel` of the largest), none holding half of the variance;
 //! - [`DriveKind::Aperiodic`]: none of these (a chirp, noise).
 //!
 //! ## The steady window ([`steady_window`])
 //! 1. **Steady drive.** `u` is cut into blocks of the smallest length (from a ladder of
 //!    lengths growing by 20 %) over which the peak-to-peak value of the busy blocks is the
-//!    same within [`LEVEL_TOLERANCE`] for nine tenths of them, and between the first busy
-//!    block and the last [`MIN_BUSY_INSIDE`] are busy (a square wave's blocks shorter than
+//!    same within `window.level_tolerance` for nine tenths of them, and between the first busy
+//!    block and the last `window.min_busy_inside` are busy (a square wave's blocks shorter than
 //!    its half period sit idle between busy ones); for a periodic drive that is about one
 //!    period. Consecutive blocks whose peak-to-peak value and
-//!    mid-level agree within [`LEVEL_TOLERANCE`] (of the peak-to-peak value) form runs;
+//!    mid-level agree within `window.level_tolerance` (of the peak-to-peak value) form runs;
 //!    idle parts, steps and amplitude changes end a run, and a gradual fade is trimmed off
 //!    against the run's median. The longest run is the steady drive. If no block length
 //!    gives stable peaks (noise), blocks of 1/32 of the record are compared by their
-//!    standard deviation and mean within [`NOISE_LEVEL_TOLERANCE`].
+//!    standard deviation and mean within `window.noise_level_tolerance`.
 //! 2. **Edges.** For a periodic drive the run's start is moved back, sample by sample, as
 //!    long as one period from there still has the run's level: the start is then within a
 //!    fraction of a period of the step onto the drive. The model's free run starts there
@@ -42,49 +42,26 @@
 //!    on the second half of the steady drive and subtracted; each period of what is left,
 //!    its own mean and slope removed (slow creep or drift is not a start-up transient), has
 //!    an RMS; the output has settled from the first period whose RMS and the next one's are
-//!    within [`SETTLED_FACTOR`] times the median of the second half.
+//!    within `window.settled_factor` times the median of the second half.
 //! 4. **Whole periods.** For a periodic drive the window ends after a whole number of
 //!    periods from its start.
 //!
 //! `--window START:END` ([`Window::given`]) replaces 1–3; the end is still cut to whole
 //! periods.
+//!
+//! Every threshold named here is a field of the rules table ([`crate::rules`]), in its
+//! `drive` and `window` sections.
 
-use crate::record::MIN_EXCITATION_STD_V;
+use crate::rules::{DriveRules, Rules, WindowRules};
 use crate::signal::analysis::{self, Tone};
 use rustfft::FftPlanner;
 use rustfft::num_complex::Complex;
 use std::fmt::Write as _;
 
-/// The largest harmonic distortion of a drive still called a sine.
-pub const SINE_MAX_THD: f64 = 0.05;
-/// Share of the variance a periodic drive's lines must hold.
-pub const HARMONIC_SHARE: f64 = 0.97;
-/// Autocorrelation at one period of a repeating drive.
-pub const PERIODIC_CORRELATION: f64 = 0.8;
-/// A line of a multisine is excited when its amplitude reaches this fraction of the largest.
-pub const EXCITED_LINE_REL: f64 = 0.1;
-/// Blocks of a steady periodic drive agree in peak-to-peak value and mid-level within this
-/// fraction of the peak-to-peak value.
-pub const LEVEL_TOLERANCE: f64 = 0.05;
-/// Blocks of a steady aperiodic drive agree in standard deviation and mean within this
-/// fraction of the standard deviation.
-pub const NOISE_LEVEL_TOLERANCE: f64 = 0.15;
-/// A block is busy when its peak-to-peak value reaches this fraction of the largest.
-pub const BUSY_REL: f64 = 0.25;
-/// Of the blocks from the first busy one to the last, the share that must be busy for the
-/// block length to be compared at all (a square wave's blocks shorter than its half period
-/// sit idle between busy ones; an idle lead-in or lead-out lies outside).
-pub const MIN_BUSY_INSIDE: f64 = 0.9;
-/// The output has settled when a period's RMS departure from the periodic part is within
-/// this factor of the settled periods' median.
-pub const SETTLED_FACTOR: f64 = 2.0;
-/// Highest harmonic of a sine or periodic drive measured.
-pub const DRIVE_HARMONICS: usize = 40;
-
 /// What kind of drive a record has.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum DriveKind {
-    /// One sine (with at most [`SINE_MAX_THD`] distortion of its own).
+    /// One sine (with at most `drive.sine_max_thd` distortion of its own).
     Sine,
     /// A periodic waveform that is not a sine (triangle, square, …).
     Periodic,
@@ -176,10 +153,10 @@ impl Drive {
     }
 }
 
-/// Harmonics of `f_hz` measured: up to [`DRIVE_HARMONICS`], below 0.45 of the sample rate
+/// Harmonics of `f_hz` measured: up to `drive.harmonics`, below `drive.nyquist_fraction` of the sample rate
 /// (a tone at Nyquist has no sine component to fit).
-pub fn harmonic_count(f_hz: f64, ts: f64) -> usize {
-    ((0.45 / ts / f_hz).floor() as usize).clamp(1, DRIVE_HARMONICS)
+pub fn harmonic_count(f_hz: f64, ts: f64, r: &DriveRules) -> usize {
+    ((r.nyquist_fraction / ts / f_hz).floor() as usize).clamp(1, r.harmonics)
 }
 
 fn variance(x: &[f64]) -> f64 {
@@ -188,13 +165,13 @@ fn variance(x: &[f64]) -> f64 {
 }
 
 /// Classifies the drive `u` (sampled at `ts`); see the module docs.
-pub fn classify(u: &[f64], ts: f64) -> Drive {
-    classify_near(u, ts, None)
+pub fn classify(u: &[f64], ts: f64, r: &Rules) -> Drive {
+    classify_near(u, ts, None, &r.drive)
 }
 
 /// [`classify`], with the dominant frequency known to within a bin (`near_hz`, e.g. from
 /// part of the same drive).
-fn classify_near(u: &[f64], ts: f64, near_hz: Option<f64>) -> Drive {
+fn classify_near(u: &[f64], ts: f64, near_hz: Option<f64>, r: &DriveRules) -> Drive {
     let var = variance(u);
     let std_v = var.sqrt();
     let none = Drive {
@@ -207,7 +184,7 @@ fn classify_near(u: &[f64], ts: f64, near_hz: Option<f64>) -> Drive {
         periodic_share: 0.0,
         std_v,
     };
-    if std_v < MIN_EXCITATION_STD_V || u.len() < 8 {
+    if std_v < r.min_std_v || u.len() < r.min_samples {
         return none;
     }
     let f_dom = match near_hz {
@@ -217,7 +194,7 @@ fn classify_near(u: &[f64], ts: f64, near_hz: Option<f64>) -> Drive {
     let Some(f_dom) = f_dom else { return none };
     // A sine or a periodic waveform whose dominant line is its fundamental.
     let n = analysis::whole_periods(u.len(), f_dom, ts);
-    let harmonics = analysis::harmonics(&u[..n], f_dom, ts, harmonic_count(f_dom, ts));
+    let harmonics = analysis::harmonics(&u[..n], f_dom, ts, harmonic_count(f_dom, ts, r));
     let var_n = variance(&u[..n]).max(1e-300);
     let power = |t: &Tone| t.amp * t.amp / 2.0;
     let fund = harmonics.first().map_or(0.0, power) / var_n;
@@ -228,8 +205,8 @@ fn classify_near(u: &[f64], ts: f64, near_hz: Option<f64>) -> Drive {
         }
         _ => 0.0,
     };
-    if fund >= 0.5 && share >= HARMONIC_SHARE {
-        if thd <= SINE_MAX_THD {
+    if fund >= r.fundamental_share && share >= r.harmonic_share {
+        if thd <= r.sine_max_thd {
             return Drive {
                 kind: DriveKind::Sine,
                 freq_hz: f_dom,
@@ -245,10 +222,10 @@ fn classify_near(u: &[f64], ts: f64, near_hz: Option<f64>) -> Drive {
         // frequency over few periods (a 1 Hz square over 8 s read as 0.998 Hz, and its
         // periods, compared edge against edge, as noise): the period where the drive
         // matches itself best.
-        let p = matched_period(u, 1.0 / (f_dom * ts)).unwrap_or(1.0 / (f_dom * ts));
+        let p = matched_period(u, 1.0 / (f_dom * ts), r).unwrap_or(1.0 / (f_dom * ts));
         let f = 1.0 / (p * ts);
         let n = analysis::whole_periods(u.len(), f, ts);
-        let harmonics = analysis::harmonics(&u[..n], f, ts, harmonic_count(f, ts));
+        let harmonics = analysis::harmonics(&u[..n], f, ts, harmonic_count(f, ts, r));
         let thd = match harmonics.first() {
             Some(h1) if h1.amp > 0.0 => {
                 harmonics.iter().skip(1).map(|t| t.amp * t.amp).sum::<f64>().sqrt() / h1.amp
@@ -283,7 +260,7 @@ fn classify_near(u: &[f64], ts: f64, near_hz: Option<f64>) -> Drive {
     }
     let average = |p: usize| -> Option<Average> {
         let periods = u.len() / p.max(1);
-        if p < 4 || periods < 2 {
+        if p < r.min_period_samples || periods < r.min_average_periods {
             return None;
         }
         let mut avg = vec![0.0; p];
@@ -291,18 +268,18 @@ fn classify_near(u: &[f64], ts: f64, near_hz: Option<f64>) -> Drive {
             avg[k % p] += (u[k] - mean) / periods as f64;
         }
         let share = (variance(&avg) / variance(&u[..periods * p]).max(1e-300)).min(1.0);
-        (share >= HARMONIC_SHARE).then_some(Average { p, periods, avg, share })
+        (share >= r.harmonic_share).then_some(Average { p, periods, avg, share })
     };
     // Of the lags that hold it, the first as good as the best (a lag a little short of a
     // slow period, as 1.95 s of an amplitude modulation's 2 s, holds most of it too).
-    let held: Vec<Average> = autocorrelation_periods(u)
+    let held: Vec<Average> = autocorrelation_periods(u, r)
         .into_iter()
-        .take(MAX_PERIOD_CANDIDATES)
+        .take(r.max_period_candidates)
         .filter_map(|period| average(period.round() as usize))
         .collect();
     let top = held.iter().map(|a| a.share).fold(0.0, f64::max);
     let Some(Average { p, periods, avg, share: periodic_share }) =
-        held.into_iter().find(|a| a.share >= top - 0.005)
+        held.into_iter().find(|a| a.share >= top - r.period_share_tie)
     else {
         return aperiodic;
     };
@@ -314,15 +291,15 @@ fn classify_near(u: &[f64], ts: f64, near_hz: Option<f64>) -> Drive {
         .iter()
         .enumerate()
         .skip(1)
-        .filter(|(_, a)| **a >= EXCITED_LINE_REL * max)
+        .filter(|(_, a)| **a >= r.excited_line_rel * max)
         .map(|(k, a)| (k as u32, *a))
         .collect();
     let f_base = 1.0 / (p as f64 * ts);
     let first_share = amps.get(1).map_or(0.0, |a| a * a / 2.0) / variance(&avg).max(1e-300);
     // Two tones or more whose common period's own line is weak: a multisine.
-    let kind = if lines.len() >= 2 && first_share < 0.5 { DriveKind::Multisine } else { DriveKind::Periodic };
+    let kind = if lines.len() >= 2 && first_share < r.fundamental_share { DriveKind::Multisine } else { DriveKind::Periodic };
     let harmonics = if kind == DriveKind::Periodic {
-        analysis::harmonics(&u[..periods * p], f_base, ts, (p / 2).clamp(1, DRIVE_HARMONICS))
+        analysis::harmonics(&u[..periods * p], f_base, ts, (p / 2).clamp(1, r.harmonics))
     } else {
         vec![]
     };
@@ -365,18 +342,24 @@ fn lagged_products(x: &[f64]) -> Vec<f64> {
     buf[..n].iter().map(|c| c.re / len as f64).collect()
 }
 
-/// Largest relative error of a period estimate [`matched_period`] corrects.
-pub const PERIOD_SEARCH_REL: f64 = 0.05;
+/// The least overlap (periods) of the record with itself at the first period searched.
+const MATCH_MIN_OVERLAP: f64 = 0.9;
+/// The least overlap (periods) at the multiple of the period searched next.
+const MULTIPLE_OVERLAP: f64 = 1.5;
+/// Fewer multiples than the period has samples, less this margin: the search within half a
+/// sample per period never reaches the next multiple.
+const MULTIPLE_MARGIN: f64 = 3.0;
 
 /// The period (samples, to a fraction of a sample) near `p0` at which `x` best matches itself:
 /// the lag of least mean squared difference `x[k + P] − x[k]` within
-/// ±[`PERIOD_SEARCH_REL`] of `p0`, then the same at the largest multiple of it the record
+/// ±`drive.period_search_rel` of `p0`, then the same at the largest multiple of it the record
 /// holds (its error divided by the multiple), refined between samples by a parabola through
 /// the three lags about the least. All lags from one FFT of the record. `None` if the
 /// record holds fewer than two periods.
-pub fn matched_period(x: &[f64], p0: f64) -> Option<f64> {
+pub fn matched_period(x: &[f64], p0: f64, r: &DriveRules) -> Option<f64> {
+    let rel = r.period_search_rel;
     let n = x.len();
-    if p0.is_nan() || p0 < 2.0 || (n as f64) < 2.0 * p0 * (1.0 - PERIOD_SEARCH_REL) {
+    if p0.is_nan() || p0 < 2.0 || (n as f64) < 2.0 * p0 * (1.0 - rel) {
         return None;
     }
     let m = analysis::mean(x);
@@ -407,11 +390,11 @@ pub fn matched_period(x: &[f64], p0: f64) -> Option<f64> {
         Some(k as f64 + shift)
     };
     let p1 =
-        least(p0 * (1.0 - PERIOD_SEARCH_REL), (p0 * (1.0 + PERIOD_SEARCH_REL)).min(n as f64 - 0.9 * p0))?;
+        least(p0 * (1.0 - rel), (p0 * (1.0 + rel)).min(n as f64 - MATCH_MIN_OVERLAP * p0))?;
     // The largest multiple whose overlap keeps a period and a half, searched within half a
     // sample per period of it (p1 is within half a sample): fewer multiples than the period
     // has samples, so the search never reaches the next multiple.
-    let mult = ((n as f64 - 1.5 * p1) / p1).floor().min((p1 - 3.0).floor());
+    let mult = ((n as f64 - MULTIPLE_OVERLAP * p1) / p1).floor().min((p1 - MULTIPLE_MARGIN).floor());
     if mult < 2.0 {
         return Some(p1);
     }
@@ -422,19 +405,17 @@ pub fn matched_period(x: &[f64], p0: f64) -> Option<f64> {
 }
 
 /// The period (samples, refined between samples) of a repeating signal: the first peak of
-/// its normalised autocorrelation, after it has fallen below 0.5, that reaches
-/// [`PERIODIC_CORRELATION`] and is at least 0.9 of the highest peak up to half the length.
-pub fn autocorrelation_period(x: &[f64]) -> Option<f64> {
-    autocorrelation_periods(x).first().copied()
+/// its normalised autocorrelation, after it has fallen below `drive.correlation_dip`, that
+/// reaches `drive.periodic_correlation` and is at least `drive.correlation_peak` of the
+/// highest peak up to half the length.
+pub fn autocorrelation_period(x: &[f64], r: &DriveRules) -> Option<f64> {
+    autocorrelation_periods(x, r).first().copied()
 }
 
-/// Lags tried as a drive's period, in order ([`autocorrelation_periods`]).
-pub const MAX_PERIOD_CANDIDATES: usize = 64;
-
 /// Every such peak, in order of lag (the candidates for [`autocorrelation_period`]).
-pub fn autocorrelation_periods(x: &[f64]) -> Vec<f64> {
+pub fn autocorrelation_periods(x: &[f64], r: &DriveRules) -> Vec<f64> {
     let n = x.len();
-    if n < 16 {
+    if n < r.min_autocorrelation_samples {
         return vec![];
     }
     let lagged = lagged_products(x);
@@ -443,17 +424,17 @@ pub fn autocorrelation_periods(x: &[f64]) -> Vec<f64> {
         return vec![];
     }
     let half = n / 2;
-    let r: Vec<f64> = (0..=half).map(|k| lagged[k] / c0 * n as f64 / (n - k) as f64).collect();
-    let Some(dip) = r.iter().position(|&v| v < 0.5) else { return vec![] };
-    let best = r[dip..].iter().copied().fold(f64::NEG_INFINITY, f64::max);
-    if best < PERIODIC_CORRELATION {
+    let rho: Vec<f64> = (0..=half).map(|k| lagged[k] / c0 * n as f64 / (n - k) as f64).collect();
+    let Some(dip) = rho.iter().position(|&v| v < r.correlation_dip) else { return vec![] };
+    let best = rho[dip..].iter().copied().fold(f64::NEG_INFINITY, f64::max);
+    if best < r.periodic_correlation {
         return vec![];
     }
     (dip.max(1)..half)
-        .filter(|&k| r[k] >= 0.9 * best && r[k] >= r[k - 1] && r[k] >= r[k + 1])
+        .filter(|&k| rho[k] >= r.correlation_peak * best && rho[k] >= rho[k - 1] && rho[k] >= rho[k + 1])
         .map(|k| {
             // Parabolic refinement of the peak.
-            let (a, b, c) = (r[k - 1], r[k], r[k + 1]);
+            let (a, b, c) = (rho[k - 1], rho[k], rho[k + 1]);
             let denom = a - 2.0 * b + c;
             let shift = if denom.abs() > 1e-300 { (0.5 * (a - c) / denom).clamp(-0.5, 0.5) } else { 0.0 };
             k as f64 + shift
@@ -547,16 +528,16 @@ enum Compare {
 }
 
 impl Compare {
-    fn agree(self, a: Level, b: Level) -> bool {
+    fn agree(self, a: Level, b: Level, r: &WindowRules) -> bool {
         match self {
             Compare::Peaks => {
                 let s = a.p2p.max(b.p2p);
-                (a.p2p - b.p2p).abs() <= LEVEL_TOLERANCE * s && (a.mid - b.mid).abs() <= LEVEL_TOLERANCE * s
+                (a.p2p - b.p2p).abs() <= r.level_tolerance * s && (a.mid - b.mid).abs() <= r.level_tolerance * s
             }
             Compare::Spread => {
                 let s = a.std.max(b.std);
-                (a.std - b.std).abs() <= NOISE_LEVEL_TOLERANCE * s
-                    && (a.mid - b.mid).abs() <= NOISE_LEVEL_TOLERANCE * s
+                (a.std - b.std).abs() <= r.noise_level_tolerance * s
+                    && (a.mid - b.mid).abs() <= r.noise_level_tolerance * s
             }
         }
     }
@@ -570,21 +551,25 @@ impl Compare {
 
 /// The block length and levels of the steady-drive search (step 1 of the module docs): the
 /// smallest length at which nine tenths of the neighbouring busy blocks have the same
-/// peak-to-peak value and mid-level, and [`MIN_BUSY_INSIDE`] of the blocks between the first
+/// peak-to-peak value and mid-level, and `window.min_busy_inside` of the blocks between the first
 /// busy one and the last are busy.
-fn blocks(u: &[f64]) -> (usize, Vec<Level>, Compare) {
+///
+/// A block length is tried while the record holds this many blocks of it.
+const MIN_BLOCKS: usize = 4;
+
+fn blocks(u: &[f64], r: &WindowRules) -> (usize, Vec<Level>, Compare) {
     let n = u.len();
-    let mut w = 8usize;
-    while w <= n / 4 {
+    let mut w = r.first_block_samples;
+    while w <= n / MIN_BLOCKS {
         let levels: Vec<Level> = u.chunks_exact(w).map(level).collect();
         let big = levels.iter().map(|l| l.p2p).fold(0.0, f64::max);
-        let busy = |l: &Level| l.p2p >= BUSY_REL * big;
+        let busy = |l: &Level| l.p2p >= r.busy_rel * big;
         // Blocks shorter than the drive's flat parts (a square wave's half period) are idle
         // between busy ones: only the busy blocks would be compared, and they agree.
         let busy_inside = match (levels.iter().position(busy), levels.iter().rposition(busy)) {
             (Some(first), Some(last)) => {
                 let inside = &levels[first..=last];
-                inside.iter().filter(|l| busy(l)).count() as f64 >= MIN_BUSY_INSIDE * inside.len() as f64
+                inside.iter().filter(|l| busy(l)).count() as f64 >= r.min_busy_inside * inside.len() as f64
             }
             _ => false,
         };
@@ -593,30 +578,30 @@ fn blocks(u: &[f64]) -> (usize, Vec<Level>, Compare) {
             .filter(|p| busy(&p[0]) && busy(&p[1]))
             .map(|p| {
                 let s = p[0].p2p.max(p[1].p2p);
-                (p[0].p2p - p[1].p2p).abs() <= LEVEL_TOLERANCE * s
-                    && (p[0].mid - p[1].mid).abs() <= LEVEL_TOLERANCE * s
+                (p[0].p2p - p[1].p2p).abs() <= r.level_tolerance * s
+                    && (p[0].mid - p[1].mid).abs() <= r.level_tolerance * s
             })
             .collect();
         if busy_inside
             && pairs.len() >= 2
             && big > 0.0
-            && pairs.iter().filter(|&&b| b).count() * 10 >= pairs.len() * 9
+            && pairs.iter().filter(|&&b| b).count() as f64 >= r.agreeing_pairs * pairs.len() as f64
         {
             return (w, levels, Compare::Peaks);
         }
-        w = (w as f64 * 1.2).ceil() as usize;
+        w = (w as f64 * r.block_growth).ceil() as usize;
     }
-    let w = (n / 32).max(1);
+    let w = (n / r.spread_blocks).max(1);
     (w, u.chunks_exact(w).map(level).collect(), Compare::Spread)
 }
 
 /// The longest run of steady blocks `[first, last]` and its median level.
-fn longest_run(levels: &[Level], cmp: Compare) -> Option<(usize, usize, Level)> {
+fn longest_run(levels: &[Level], cmp: Compare, r: &WindowRules) -> Option<(usize, usize, Level)> {
     let big = levels.iter().map(|l| cmp.size(l)).fold(0.0, f64::max);
     if big.is_nan() || big <= 0.0 {
         return None;
     }
-    let busy = |l: &Level| cmp.size(l) >= BUSY_REL * big;
+    let busy = |l: &Level| cmp.size(l) >= r.busy_rel * big;
     let mut best: Option<(usize, usize, Level)> = None;
     let mut i = 0;
     while i < levels.len() {
@@ -625,7 +610,7 @@ fn longest_run(levels: &[Level], cmp: Compare) -> Option<(usize, usize, Level)> 
             continue;
         }
         let mut j = i;
-        while j + 1 < levels.len() && busy(&levels[j + 1]) && cmp.agree(levels[j], levels[j + 1]) {
+        while j + 1 < levels.len() && busy(&levels[j + 1]) && cmp.agree(levels[j], levels[j + 1], r) {
             j += 1;
         }
         // Trim blocks that depart from the run's median (a gradual fade).
@@ -638,17 +623,17 @@ fn longest_run(levels: &[Level], cmp: Compare) -> Option<(usize, usize, Level)> 
                 std: median(levels[a..=b].iter().map(|l| l.std).collect()),
             };
             let before = (a, b);
-            while a < b && !cmp.agree(levels[a], med) {
+            while a < b && !cmp.agree(levels[a], med, r) {
                 a += 1;
             }
-            while b > a && !cmp.agree(levels[b], med) {
+            while b > a && !cmp.agree(levels[b], med, r) {
                 b -= 1;
             }
             if (a, b) == before {
                 break;
             }
         }
-        if cmp.agree(levels[a], med) && best.is_none_or(|(x, y, _)| b - a > y - x) {
+        if cmp.agree(levels[a], med, r) && best.is_none_or(|(x, y, _)| b - a > y - x) {
             best = Some((a, b, med));
         }
         i = j + 1;
@@ -705,11 +690,11 @@ fn sliding_levels(x: &[f64], w: usize, from: usize, to: usize) -> Vec<Level> {
 
 /// One period from `s` has the steady level: peak-to-peak value, mid-level and standard
 /// deviation (over exactly one period, a standard deviation does not depend on the phase).
-fn period_agrees(l: Level, steady: Level) -> bool {
+fn period_agrees(l: Level, steady: Level, r: &WindowRules) -> bool {
     let s = l.p2p.max(steady.p2p);
-    (l.p2p - steady.p2p).abs() <= LEVEL_TOLERANCE * s
-        && (l.mid - steady.mid).abs() <= LEVEL_TOLERANCE * s
-        && (l.std - steady.std).abs() <= LEVEL_TOLERANCE * l.std.max(steady.std)
+    (l.p2p - steady.p2p).abs() <= r.level_tolerance * s
+        && (l.mid - steady.mid).abs() <= r.level_tolerance * s
+        && (l.std - steady.std).abs() <= r.level_tolerance * l.std.max(steady.std)
 }
 
 /// The steady window of a record (see the module docs). `given` is `--window` in samples.
@@ -718,32 +703,34 @@ pub fn steady_window(
     y: &[f64],
     ts: f64,
     given: Option<(usize, usize)>,
+    r: &Rules,
 ) -> Result<(Window, Drive), WindowError> {
     let n = u.len().min(y.len());
+    let slack = r.drive.period_slack_samples;
     if let Some((start, end)) = given {
-        let drive = classify(&u[start..end], ts);
-        let end2 = whole_period_end(start, end, &drive);
+        let drive = classify(&u[start..end], ts, r);
+        let end2 = whole_period_end(start, end, &drive, slack);
         let mut why = String::from("given by --window");
         if end2 < end {
             let _ = write!(why, "; cut to whole periods of the drive at {} s", fmt_s(end2 as f64 * ts));
         }
         return Ok((Window { drive_on: start, start, end: end2, given: true, why }, drive));
     }
-    let (mut w, mut levels, cmp) = blocks(&u[..n]);
-    let (mut a, mut b, _) = longest_run(&levels, cmp).ok_or(WindowError::NoSteadyDrive)?;
+    let (mut w, mut levels, cmp) = blocks(&u[..n], &r.window);
+    let (mut a, mut b, _) = longest_run(&levels, cmp, &r.window).ok_or(WindowError::NoSteadyDrive)?;
     // The drive, from the run's inner blocks (the outer ones may hold part of a step).
     let inner_of =
         |a: usize, b: usize, w: usize| if b >= a + 2 { ((a + 1) * w, b * w) } else { (a * w, (b + 1) * w) };
     let mut inner = inner_of(a, b, w);
-    let mut first = classify(&u[inner.0..inner.1], ts);
+    let mut first = classify(&u[inner.0..inner.1], ts, r);
     if let (true, Some(p), Compare::Peaks) = (first.is_periodic(), first.period_samples, cmp) {
         // Blocks shorter than a period may miss a peak: again with blocks of one period.
-        if (w as f64) < p && (p.ceil() as usize) <= n / 4 {
+        if (w as f64) < p && (p.ceil() as usize) <= n / MIN_BLOCKS {
             w = p.ceil() as usize;
             levels = u[..n].chunks_exact(w).map(level).collect();
-            (a, b, _) = longest_run(&levels, cmp).ok_or(WindowError::NoSteadyDrive)?;
+            (a, b, _) = longest_run(&levels, cmp, &r.window).ok_or(WindowError::NoSteadyDrive)?;
             inner = inner_of(a, b, w);
-            first = classify(&u[inner.0..inner.1], ts);
+            first = classify(&u[inner.0..inner.1], ts, r);
         }
     }
     let (mut on, mut off) = (a * w, (b + 1) * w);
@@ -766,7 +753,7 @@ pub fn steady_window(
         let from = inner.0.saturating_sub(2 * w);
         let lv = sliding_levels(&u[..n], pw, from, inner.0 + 1);
         let mut s = inner.0;
-        while s > from && s - 1 - from < lv.len() && period_agrees(lv[s - 1 - from], steady) {
+        while s > from && s - 1 - from < lv.len() && period_agrees(lv[s - 1 - from], steady, &r.window) {
             s -= 1;
         }
         on = s;
@@ -775,7 +762,7 @@ pub fn steady_window(
             let from_s = inner.1 + 1 - pw;
             let lv = sliding_levels(&u[..n], pw, from_s, to + 1 - pw);
             let mut e = inner.1;
-            while e < to && e - inner.1 < lv.len() && period_agrees(lv[e - inner.1], steady) {
+            while e < to && e - inner.1 < lv.len() && period_agrees(lv[e - inner.1], steady, &r.window) {
                 e += 1;
             }
             off = e;
@@ -800,7 +787,7 @@ pub fn steady_window(
     // The inner blocks' drive: its frequency is not biased by a partial period at an edge.
     let drive = first;
     if let (true, Some(p)) = (drive.is_periodic(), drive.period_samples) {
-        let settled = settling(&y[on..off], ts, &drive, p);
+        let settled = settling(&y[on..off], ts, &drive, p, r);
         if settled > 0 {
             start = on + settled;
             let _ = write!(
@@ -810,27 +797,27 @@ pub fn steady_window(
             );
         }
     }
-    let end = whole_period_end(start, off, &drive);
+    let end = whole_period_end(start, off, &drive, slack);
     if end < off && drive.is_periodic() {
         why.push_str("; whole periods of the drive");
     }
     // The inner blocks' dominant line is within a bin of the window's (a sine's or a periodic
     // drive's fundamental).
     let near = matches!(drive.kind, DriveKind::Sine | DriveKind::Periodic).then_some(drive.freq_hz);
-    let drive = classify_near(&u[start..end], ts, near);
+    let drive = classify_near(&u[start..end], ts, near, &r.drive);
     if let (true, Some(p)) = (drive.is_periodic(), drive.period_samples) {
         // A "period" the window does not hold twice is a piece of a drive that does not
         // repeat (a random staircase's one step): the whole record says what it is.
         // A slow drive's record of fewer periods than the blocks need (four of about a
         // period) gives such a piece too: if the whole record repeats, it is the window.
         if ((end - start) as f64) < 2.0 * p {
-            let whole = classify(&u[..n], ts);
+            let whole = classify(&u[..n], ts, r);
             let why = if whole.is_periodic() {
                 "the whole record: its drive repeats over the record only (too few periods to look for a steady part)"
             } else {
                 "the whole record: no part of it repeats over two periods"
             };
-            let end = whole_period_end(0, n, &whole);
+            let end = whole_period_end(0, n, &whole, slack);
             return Ok((Window { drive_on: 0, start: 0, end, given: false, why: why.to_string() }, whole));
         }
     }
@@ -838,22 +825,29 @@ pub fn steady_window(
 }
 
 /// The end of the longest run of whole periods from `start` (for periodic drives).
-fn whole_period_end(start: usize, end: usize, drive: &Drive) -> usize {
+/// `slack` samples are allowed (`drive.period_slack_samples`): a period estimated a hair
+/// long keeps the last period.
+fn whole_period_end(start: usize, end: usize, drive: &Drive, slack: f64) -> usize {
     match (drive.is_periodic(), drive.period_samples) {
         (true, Some(p)) if p > 0.0 => {
-            // Half a sample of slack: a period estimated a hair long keeps the last period.
-            let periods = (((end - start) as f64 + 0.49) / p).floor();
+            let periods = whole_periods_in(end - start, p, slack) as f64;
             if periods >= 1.0 { (start + (periods * p).round() as usize).min(end) } else { end }
         }
         _ => end,
     }
 }
 
+/// Whole periods of `p` samples in `n` samples, with `slack` samples allowed
+/// (`drive.period_slack_samples`).
+pub fn whole_periods_in(n: usize, p: f64, slack: f64) -> usize {
+    ((n as f64 + slack) / p).floor() as usize
+}
+
 /// Samples from the start of the steady drive until the output has settled (step 3).
-fn settling(y: &[f64], ts: f64, drive: &Drive, p: f64) -> usize {
+fn settling(y: &[f64], ts: f64, drive: &Drive, p: f64, r: &Rules) -> usize {
     let n = y.len();
-    let periods = ((n as f64 + 0.49) / p).floor() as usize;
-    if periods < 4 {
+    let periods = whole_periods_in(n, p, r.drive.period_slack_samples);
+    if periods < r.window.min_settling_periods {
         return 0;
     }
     let at = |i: usize| (i as f64 * p).round() as usize;
@@ -872,7 +866,7 @@ fn settling(y: &[f64], ts: f64, drive: &Drive, p: f64) -> usize {
             (0..n).map(|k| avg[(k + pp - half % pp) % pp]).collect()
         }
         None => {
-            let kmax = harmonic_count(drive.freq_hz, ts);
+            let kmax = harmonic_count(drive.freq_hz, ts, &r.drive);
             let mean = analysis::mean(tail);
             let h = analysis::harmonics(tail, drive.freq_hz, ts, kmax);
             let mut t = vec![mean; n];
@@ -890,9 +884,9 @@ fn settling(y: &[f64], ts: f64, drive: &Drive, p: f64) -> usize {
         })
         .collect();
     let reference = median(rms[periods / 2..].to_vec());
-    // A floor of 0.1 % of the output's RMS: a record without noise settles too.
-    let floor = 1e-3 * analysis::rms(&detrend(tail));
-    let limit = (SETTLED_FACTOR * reference).max(floor);
+    // A floor of part of the output's RMS: a record without noise settles too.
+    let floor = r.window.settled_floor_rel * analysis::rms(&detrend(tail));
+    let limit = (r.window.settled_factor * reference).max(floor);
     let first = (0..periods.saturating_sub(1)).find(|&i| rms[i] <= limit && rms[i + 1] <= limit).unwrap_or(0);
     at(first)
 }
@@ -919,6 +913,10 @@ pub enum NoResponse {
         share: f64,
         /// Whether `share` is the variance share (periodic drive).
         periodic: bool,
+        /// The least it had to be (`window.min_driven_share` or `window.min_correlation`).
+        least: f64,
+        /// The longest lag tried (s; aperiodic drives).
+        max_lag_s: f64,
     },
 }
 
@@ -935,17 +933,17 @@ impl std::fmt::Display for NoResponse {
                 "no response to analyse: the output takes only {levels} values {step_um:.3e} µm apart, below what \
                  the sensor resolves"
             ),
-            NoResponse::Uncorrelated { share, periodic: true } => write!(
+            NoResponse::Uncorrelated { share, periodic: true, least, .. } => write!(
                 f,
                 "no response to analyse: the output does not follow the drive (the drive's frequencies hold {:.1} % \
                  of its variance, less than {:.0} %)",
                 100.0 * share,
-                100.0 * MIN_DRIVEN_SHARE
+                100.0 * least
             ),
-            NoResponse::Uncorrelated { share, periodic: false } => write!(
+            NoResponse::Uncorrelated { share, periodic: false, least, max_lag_s } => write!(
                 f,
                 "no response to analyse: the output does not follow the drive (largest correlation {share:.3} \
-                 over lags up to {MAX_LAG_S} s, less than {MIN_CORRELATION})"
+                 over lags up to {max_lag_s} s, less than {least})"
             ),
         }
     }
@@ -953,18 +951,9 @@ impl std::fmt::Display for NoResponse {
 
 impl std::error::Error for NoResponse {}
 
-/// Fewest distinct output values in a window that make a response.
-pub const MIN_LEVELS: usize = 4;
-/// Smallest share of the output's variance on a periodic drive's lines for the output to
-/// follow the drive.
-pub const MIN_DRIVEN_SHARE: f64 = 0.02;
-/// Smallest correlation between an aperiodic drive and the output.
-pub const MIN_CORRELATION: f64 = 0.1;
-/// Longest lag between an aperiodic drive and the output tried (s).
-pub const MAX_LAG_S: f64 = 0.1;
-
 /// Checks that the output responds to the drive in the window (see [`NoResponse`]).
-pub fn check_response(u: &[f64], y: &[f64], ts: f64, drive: &Drive) -> Result<(), NoResponse> {
+pub fn check_response(u: &[f64], y: &[f64], ts: f64, drive: &Drive, r: &Rules) -> Result<(), NoResponse> {
+    let w = &r.window;
     let (lo, hi) = analysis::extent(y);
     if hi.is_nan() || lo.is_nan() || hi <= lo {
         return Err(NoResponse::Constant { value_um: if lo.is_finite() { lo } else { 0.0 } });
@@ -972,32 +961,37 @@ pub fn check_response(u: &[f64], y: &[f64], ts: f64, drive: &Drive) -> Result<()
     let mut sorted = y.to_vec();
     sorted.sort_by(f64::total_cmp);
     sorted.dedup();
-    if sorted.len() < MIN_LEVELS {
+    if sorted.len() < w.min_levels {
         let step_um = sorted.windows(2).map(|w| w[1] - w[0]).fold(f64::INFINITY, f64::min);
         return Err(NoResponse::BelowResolution { levels: sorted.len(), step_um });
     }
     match drive.kind {
         DriveKind::Sine | DriveKind::Periodic => {
             let n = analysis::whole_periods(y.len(), drive.freq_hz, ts);
-            let kmax = harmonic_count(drive.freq_hz, ts);
+            let kmax = harmonic_count(drive.freq_hz, ts, &r.drive);
             let h = analysis::harmonics(&y[..n], drive.freq_hz, ts, kmax);
             let share = h.iter().map(|t| t.amp * t.amp / 2.0).sum::<f64>() / variance(&y[..n]).max(1e-300);
-            if share < MIN_DRIVEN_SHARE {
-                return Err(NoResponse::Uncorrelated { share, periodic: true });
+            if share < w.min_driven_share {
+                return Err(NoResponse::Uncorrelated { share, periodic: true, least: w.min_driven_share, max_lag_s: 0.0 });
             }
         }
         DriveKind::Multisine => {
             let p = drive.period_samples.unwrap_or(1.0).round().max(1.0) as usize;
             let share = averaged_period_share(y, p);
-            if share < MIN_DRIVEN_SHARE {
-                return Err(NoResponse::Uncorrelated { share, periodic: true });
+            if share < w.min_driven_share {
+                return Err(NoResponse::Uncorrelated { share, periodic: true, least: w.min_driven_share, max_lag_s: 0.0 });
             }
         }
         DriveKind::Aperiodic => {
-            let lags = ((MAX_LAG_S / ts) as usize).min(y.len() / 4);
+            let lags = ((w.max_lag_s / ts) as usize).min((w.max_lag_share * y.len() as f64) as usize);
             let c = max_correlation(u, y, lags);
-            if c < MIN_CORRELATION {
-                return Err(NoResponse::Uncorrelated { share: c, periodic: false });
+            if c < w.min_correlation {
+                return Err(NoResponse::Uncorrelated {
+                    share: c,
+                    periodic: false,
+                    least: w.min_correlation,
+                    max_lag_s: w.max_lag_s,
+                });
             }
         }
         DriveKind::None => {}
@@ -1048,36 +1042,37 @@ fn max_correlation(u: &[f64], y: &[f64], lags: usize) -> f64 {
 /// the trend over whole-sample periods; a multisine: less its average period), else from the
 /// second difference (an upper bound for a smooth output); at least the RMS error `q/√12`
 /// of the grid of step `q` the output's values lie on ([`resolution`]: `"quantisation"`).
-pub fn noise_floor(y: &[f64], ts: f64, drive: &Drive) -> (f64, &'static str) {
-    let (noise, how) = noise_floor_of_drive(y, ts, drive);
+pub fn noise_floor(y: &[f64], ts: f64, drive: &Drive, r: &Rules) -> (f64, &'static str) {
+    let (noise, how) = noise_floor_of_drive(y, ts, drive, &r.drive);
     // A sensor's steps repeat with an output that repeats: they stay out of what differs
     // from period to period, yet no model fits them.
-    match resolution(y) {
+    match resolution(y, &r.window) {
         Some(q) if q / 12f64.sqrt() > noise => (q / 12f64.sqrt(), "quantisation"),
         _ => (noise, how),
     }
 }
 
 /// The step of the grid `y`'s values lie on (a sensor's or converter's resolution, µm), if
-/// they lie on one: fewer distinct values than a quarter of the samples, every gap between
-/// neighbouring values a whole multiple of the smallest (to 10⁻³ of it).
-pub fn resolution(y: &[f64]) -> Option<f64> {
+/// they lie on one: fewer distinct values than `window.grid_max_share` of the samples, every
+/// gap between neighbouring values a whole multiple of the smallest (to
+/// `window.grid_tolerance` of it).
+pub fn resolution(y: &[f64], r: &WindowRules) -> Option<f64> {
     let mut v: Vec<f64> = y.iter().copied().filter(|x| x.is_finite()).collect();
     v.sort_by(f64::total_cmp);
     v.dedup();
-    if v.len() < MIN_LEVELS || v.len() * 4 > y.len() {
+    if v.len() < r.min_levels || v.len() as f64 > r.grid_max_share * y.len() as f64 {
         return None;
     }
     let q = v.windows(2).map(|w| w[1] - w[0]).fold(f64::INFINITY, f64::min);
     let on_grid = v.windows(2).all(|w| {
         let k = (w[1] - w[0]) / q;
-        (k - k.round()).abs() <= 1e-3 * k.max(1.0)
+        (k - k.round()).abs() <= r.grid_tolerance * k.max(1.0)
     });
     (q > 0.0 && q.is_finite() && on_grid).then_some(q)
 }
 
 /// [`noise_floor`] from what does not repeat with the drive alone.
-fn noise_floor_of_drive(y: &[f64], ts: f64, drive: &Drive) -> (f64, &'static str) {
+fn noise_floor_of_drive(y: &[f64], ts: f64, drive: &Drive, r: &DriveRules) -> (f64, &'static str) {
     // What does not repeat from one period of `p` samples to the next: every harmonic, the
     // fast ones too (a triangle's corners, a converter's steps at a fraction of the sampling
     // rate), without fitting them.
@@ -1096,7 +1091,7 @@ fn noise_floor_of_drive(y: &[f64], ts: f64, drive: &Drive) -> (f64, &'static str
                 let e = analysis::periodic_residual(&y[..n], p);
                 return (analysis::rms(&e) * (m / (m - 1.0)).sqrt(), "period_to_period");
             }
-            let kmax = harmonic_count(drive.freq_hz, ts);
+            let kmax = harmonic_count(drive.freq_hz, ts, r);
             let h = analysis::harmonics(&y[..n], drive.freq_hz, ts, kmax);
             let mut rest: Vec<f64> = y[..n].to_vec();
             for t in &h {
@@ -1184,44 +1179,33 @@ pub struct SineSegment {
     pub amplitude_v: f64,
 }
 
-/// Blocks of a record, per try of [`sine_segments`]: the record in this many.
-const SEGMENT_BLOCKS: [usize; 3] = [16, 32, 64];
-/// Blocks of one segment agree in frequency within this fraction, and in amplitude within
-/// [`LEVEL_TOLERANCE`].
-const SEGMENT_FREQ_TOLERANCE: f64 = 0.01;
-/// Fewest blocks of a segment.
-const MIN_SEGMENT_BLOCKS: usize = 2;
-/// Least share of the record the segments cover.
-const MIN_SEGMENTS_SHARE: f64 = 0.5;
-/// Fewest whole periods of a segment (the diagnosis needs four, fitted and held out, after
-/// the output settles).
-pub const MIN_SEGMENT_PERIODS: f64 = 6.0;
-
 /// The steady sines a record steps through (a stepped sine: the same actuator at a series
 /// of frequencies or amplitudes in one file), in order; empty unless there are at least
 /// two that differ in frequency or amplitude.
 ///
-/// The record is cut into blocks (16, 32 or 64 of them, the cut that covers most of the
-/// record); each block's drive is classified on its own, and consecutive sine blocks of
-/// one frequency (within 1 %) and amplitude (within [`LEVEL_TOLERANCE`]) make a segment,
-/// kept if it spans two blocks or more and [`MIN_SEGMENT_PERIODS`] whole periods (a sine
-/// that changes from block to block, a chirp or a modulation, is no step). The segments
-/// must cover half the record. A block that straddles a step is not a clean sine, so a
+/// The record is cut into blocks (`drive.segment_blocks` of them, the cut that covers most
+/// of the record); each block's drive is classified on its own, and consecutive sine blocks
+/// of one frequency (within `drive.segment_freq_tolerance`) and amplitude (within
+/// `window.level_tolerance`) make a segment, kept if it spans `drive.min_segment_blocks` or
+/// more and `drive.min_segment_periods` whole periods (a sine that changes from block to
+/// block, a chirp or a modulation, is no step). The segments must cover
+/// `drive.min_segments_share` of the record. A block that straddles a step is not a clean sine, so a
 /// segment ends at most a block short of its step.
-pub fn sine_segments(u: &[f64], ts: f64) -> Vec<SineSegment> {
+pub fn sine_segments(u: &[f64], ts: f64, r: &Rules) -> Vec<SineSegment> {
+    let (d, tol) = (&r.drive, r.window.level_tolerance);
     let mut best: Vec<SineSegment> = vec![];
     let covered = |v: &[SineSegment]| v.iter().map(|s| s.end - s.start).sum::<usize>();
-    for count in SEGMENT_BLOCKS {
+    for count in d.segment_blocks {
         let w = u.len() / count;
-        if w < 16 {
+        if w < d.min_segment_block_samples {
             continue;
         }
         let blocks: Vec<Option<(f64, f64)>> = u
             .chunks_exact(w)
             .map(|b| {
-                let d = classify(b, ts);
-                let amp = d.harmonics.first().map_or(0.0, |t| t.amp);
-                (d.kind == DriveKind::Sine && amp > 0.0).then_some((d.freq_hz, amp))
+                let b = classify(b, ts, r);
+                let amp = b.harmonics.first().map_or(0.0, |t| t.amp);
+                (b.kind == DriveKind::Sine && amp > 0.0).then_some((b.freq_hz, amp))
             })
             .collect();
         // Runs of blocks of one sine, [first, last + 1), found from the blocks alone.
@@ -1234,15 +1218,14 @@ pub fn sine_segments(u: &[f64], ts: f64) -> Vec<SineSegment> {
             };
             let mut e = k + 1;
             while let Some(Some((f2, a2))) = blocks.get(e) {
-                if (f2 - f).abs() > SEGMENT_FREQ_TOLERANCE * f
-                    || (a2 - a).abs() > LEVEL_TOLERANCE * a.max(*a2)
+                if (f2 - f).abs() > d.segment_freq_tolerance * f || (a2 - a).abs() > tol * a.max(*a2)
                 {
                     break;
                 }
                 e += 1;
             }
             // A sine that changes from block to block (a chirp, a modulation) is no step.
-            if e - k >= MIN_SEGMENT_BLOCKS {
+            if e - k >= d.min_segment_blocks {
                 runs.push((k, e));
             }
             k = e;
@@ -1252,7 +1235,7 @@ pub fn sine_segments(u: &[f64], ts: f64) -> Vec<SineSegment> {
             return vec![];
         }
         let run_blocks: usize = runs.iter().map(|(k, e)| e - k).sum();
-        if runs.len() < 2 || ((run_blocks * w) as f64) < MIN_SEGMENTS_SHARE * u.len() as f64 {
+        if runs.len() < 2 || ((run_blocks * w) as f64) < d.min_segments_share * u.len() as f64 {
             continue;
         }
         // Each run's sine over its whole length, and its periods.
@@ -1260,17 +1243,17 @@ pub fn sine_segments(u: &[f64], ts: f64) -> Vec<SineSegment> {
             .iter()
             .filter_map(|&(k, e)| {
                 let (start, end) = (k * w, e * w);
-                let d = classify(&u[start..end], ts);
-                let amp = d.harmonics.first().map_or(0.0, |t| t.amp);
-                (d.kind == DriveKind::Sine && (end - start) as f64 * ts * d.freq_hz >= MIN_SEGMENT_PERIODS)
-                    .then_some(SineSegment { start, end, freq_hz: d.freq_hz, amplitude_v: amp })
+                let c = classify(&u[start..end], ts, r);
+                let amp = c.harmonics.first().map_or(0.0, |t| t.amp);
+                (c.kind == DriveKind::Sine && (end - start) as f64 * ts * c.freq_hz >= d.min_segment_periods)
+                    .then_some(SineSegment { start, end, freq_hz: c.freq_hz, amplitude_v: amp })
             })
             .collect();
         let distinct = segs.windows(2).any(|p| {
-            (p[0].freq_hz - p[1].freq_hz).abs() > SEGMENT_FREQ_TOLERANCE * p[0].freq_hz
-                || (p[0].amplitude_v - p[1].amplitude_v).abs() > LEVEL_TOLERANCE * p[0].amplitude_v
+            (p[0].freq_hz - p[1].freq_hz).abs() > d.segment_freq_tolerance * p[0].freq_hz
+                || (p[0].amplitude_v - p[1].amplitude_v).abs() > tol * p[0].amplitude_v
         });
-        let most = covered(&segs) as f64 >= MIN_SEGMENTS_SHARE * u.len() as f64;
+        let most = covered(&segs) as f64 >= d.min_segments_share * u.len() as f64;
         if segs.len() >= 2 && distinct && most && covered(&segs) > covered(&best) {
             best = segs;
         }
@@ -1281,6 +1264,9 @@ pub fn sine_segments(u: &[f64], ts: f64) -> Vec<SineSegment> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use std::sync::LazyLock;
+
+    static R: LazyLock<Rules> = LazyLock::new(Rules::default);
     use std::f64::consts::TAU;
 
     fn sine(n: usize, f: f64, ts: f64, a: f64) -> Vec<f64> {
@@ -1291,7 +1277,7 @@ mod tests {
     fn kinds_of_drive() {
         let ts = 1e-3;
         let s = sine(5000, 23.0, ts, 1.0);
-        let d = classify(&s, ts);
+        let d = classify(&s, ts, &R);
         assert_eq!(d.kind, DriveKind::Sine, "{d:?}");
         // The distortion of a pure sine is what a frequency estimated to ~1e-9 Hz leaves when
         // the whole periods it counts end a sample short (about 1e-5), far below
@@ -1300,18 +1286,18 @@ mod tests {
         // A sine with 3 % of its own 3rd harmonic is still a sine, and the 3rd is measured.
         let dist: Vec<f64> =
             (0..5000).map(|k| s[k] + 0.03 * (TAU * 69.0 * k as f64 * ts + 0.4).sin()).collect();
-        let d = classify(&dist, ts);
+        let d = classify(&dist, ts, &R);
         assert_eq!(d.kind, DriveKind::Sine);
         assert!((d.harmonic_rel(3) - 0.03).abs() < 1e-4, "{}", d.harmonic_rel(3));
         // A triangle and a square are periodic.
         let tri: Vec<f64> = (0..5000)
             .map(|k| (2.0 / std::f64::consts::PI) * (TAU * 7.0 * k as f64 * ts).sin().asin())
             .collect();
-        let d = classify(&tri, ts);
+        let d = classify(&tri, ts, &R);
         assert_eq!(d.kind, DriveKind::Periodic, "{d:?}");
         assert!((d.freq_hz - 7.0).abs() < 1e-3);
         let sq: Vec<f64> = (0..5000).map(|k| (TAU * 4.0 * k as f64 * ts).sin().signum()).collect();
-        assert_eq!(classify(&sq, ts).kind, DriveKind::Periodic);
+        assert_eq!(classify(&sq, ts, &R).kind, DriveKind::Periodic);
         // An odd random-phase multisine of period 1024 samples.
         let mut g = 7u64;
         let mut rnd = || {
@@ -1327,7 +1313,7 @@ mod tests {
                     * 0.1
             })
             .collect();
-        let d = classify(&ms, ts);
+        let d = classify(&ms, ts, &R);
         assert_eq!(d.kind, DriveKind::Multisine, "{}", d.describe());
         assert_eq!(d.period_samples, Some(1024.0));
         assert_eq!(d.lines.len(), 40);
@@ -1336,16 +1322,16 @@ mod tests {
         let two: Vec<f64> = (0..10_000)
             .map(|k| 0.7 * (TAU * 10.0 * k as f64 * ts).sin() + 0.5 * (TAU * 17.0 * k as f64 * ts).sin())
             .collect();
-        let d = classify(&two, ts);
+        let d = classify(&two, ts, &R);
         assert_eq!((d.kind, d.period_samples), (DriveKind::Multisine, Some(1000.0)), "{}", d.describe());
         assert_eq!(d.lines.iter().map(|l| l.0).collect::<Vec<_>>(), vec![10, 17]);
         // Noise and a chirp are aperiodic; a constant is none.
         let noise: Vec<f64> = (0..8000).map(|_| rnd() - 0.5).collect();
-        assert_eq!(classify(&noise, ts).kind, DriveKind::Aperiodic);
+        assert_eq!(classify(&noise, ts, &R).kind, DriveKind::Aperiodic);
         let chirp: Vec<f64> =
             (0..8000).map(|k| (TAU * (1.0 + 5.0 * k as f64 * ts) * k as f64 * ts).sin()).collect();
-        assert_eq!(classify(&chirp, ts).kind, DriveKind::Aperiodic, "{}", classify(&chirp, ts).describe());
-        assert_eq!(classify(&vec![0.3; 1000], ts).kind, DriveKind::None);
+        assert_eq!(classify(&chirp, ts, &R).kind, DriveKind::Aperiodic, "{}", classify(&chirp, ts, &R).describe());
+        assert_eq!(classify(&vec![0.3; 1000], ts, &R).kind, DriveKind::None);
     }
 
     #[test]
@@ -1356,7 +1342,7 @@ mod tests {
         for (ts, n) in [(1e-4, 100_000), (1e-3, 10_000)] {
             let u: Vec<f64> = (0..n).map(|k| 50.0 - 50.0 * (TAU * 1.0 * k as f64 * ts).cos()).collect();
             let y: Vec<f64> = u.iter().map(|v| 0.15 * v).collect();
-            let (w, d) = steady_window(&u, &y, ts, None).unwrap();
+            let (w, d) = steady_window(&u, &y, ts, None, &R).unwrap();
             assert_eq!(d.kind, DriveKind::Sine);
             assert!((d.freq_hz - 1.0).abs() < 1e-7 && d.thd < 1e-5, "{} Hz, thd {}", d.freq_hz, d.thd);
             // Every one of the ten periods, the last one too.
@@ -1373,7 +1359,7 @@ mod tests {
             (0..n).map(|k| (2.0 / std::f64::consts::PI) * (TAU * k as f64 / p).sin().asin()).collect()
         };
         for (n, p) in [(50_000, 10_000.0), (9_954, 63.0), (9_954, 62.7), (20_000, 1_234.5)] {
-            let d = classify(&tri(n, p), 1e-3);
+            let d = classify(&tri(n, p), 1e-3, &R);
             assert_eq!(d.kind, DriveKind::Periodic);
             let got = d.period_samples.unwrap();
             assert!((got - p).abs() < 1e-3 * p.max(100.0) / 100.0, "{n} samples of {p}: {got}");
@@ -1387,7 +1373,7 @@ mod tests {
         let ts = 1e-3;
         let u = sine(30_000, 0.1, ts, 50.0);
         let y: Vec<f64> = u.iter().map(|v| 0.15 * v).collect();
-        let (w, d) = steady_window(&u, &y, ts, None).unwrap();
+        let (w, d) = steady_window(&u, &y, ts, None, &R).unwrap();
         assert_eq!(d.kind, DriveKind::Sine);
         assert!((d.freq_hz - 0.1).abs() < 1e-6, "{}", d.freq_hz);
         assert_eq!((w.start, w.end), (0, 30_000), "{}", w.why);
@@ -1406,7 +1392,7 @@ mod tests {
             })
             .collect();
         let y: Vec<f64> = u.iter().map(|v| 8.0 * v).collect();
-        let (w, drive) = steady_window(&u, &y, ts, None).unwrap();
+        let (w, drive) = steady_window(&u, &y, ts, None, &R).unwrap();
         assert_eq!(drive.kind, DriveKind::Aperiodic, "{} in {w:?}", drive.describe());
         assert_eq!((w.start, w.end), (0, u.len()));
     }
@@ -1421,7 +1407,7 @@ mod tests {
             let mut u = vec![0.0; lead];
             u.extend((0..n).map(|k| (TAU * f * k as f64 * ts).sin().signum()));
             let y: Vec<f64> = u.iter().map(|v| 8.0 * v).collect();
-            let (w, drive) = steady_window(&u, &y, ts, None).unwrap();
+            let (w, drive) = steady_window(&u, &y, ts, None, &R).unwrap();
             assert_eq!(drive.kind, DriveKind::Periodic, "{f} Hz: {}", drive.describe());
             assert!((drive.freq_hz - f).abs() < 1e-2 * f, "{f} Hz: {}", drive.describe());
             let covered = (w.end - w.drive_on) as f64 / n as f64;
@@ -1449,7 +1435,7 @@ mod tests {
                 10.0 * u[k] + 5.0 * ring
             })
             .collect();
-        let (w, drive) = steady_window(&u, &y, ts, None).unwrap();
+        let (w, drive) = steady_window(&u, &y, ts, None, &R).unwrap();
         assert_eq!(drive.kind, DriveKind::Sine);
         assert!((3250..3300 + 100).contains(&w.drive_on), "{w:?}");
         assert!(w.start >= 3300 + 150 && w.start < 3300 + 600, "{w:?}");
@@ -1466,7 +1452,7 @@ mod tests {
         let mut u = sine(3000, 10.0, ts, 1.0);
         u.extend(sine(6000, 10.0, ts, 2.0));
         let y = u.clone();
-        let (w, _) = steady_window(&u, &y, ts, None).unwrap();
+        let (w, _) = steady_window(&u, &y, ts, None, &R).unwrap();
         assert!(w.drive_on >= 2950 && w.drive_on <= 3100, "{w:?}");
         assert!(w.end > 8800, "{w:?}");
     }
@@ -1475,7 +1461,7 @@ mod tests {
     fn a_given_window_is_used_as_given_cut_to_whole_periods() {
         let ts = 1e-3;
         let u = sine(5000, 10.0, ts, 1.0);
-        let (w, d) = steady_window(&u, &u, ts, Some((1000, 3050))).unwrap();
+        let (w, d) = steady_window(&u, &u, ts, Some((1000, 3050)), &R).unwrap();
         assert_eq!((w.drive_on, w.start, w.end), (1000, 1000, 3000));
         assert_eq!(d.kind, DriveKind::Sine);
         assert!(w.given);
@@ -1488,7 +1474,7 @@ mod tests {
         // Frequencies and amplitudes; the steps found within a block of their true edges.
         let u: Vec<f64> =
             sine(5.0, 1.0, 4000).chain(sine(12.0, 1.0, 4000)).chain(sine(12.0, 2.0, 4000)).collect();
-        let segs = sine_segments(&u, ts);
+        let segs = sine_segments(&u, ts, &R);
         let got: Vec<(f64, f64)> = segs.iter().map(|s| (s.freq_hz, s.amplitude_v)).collect();
         assert_eq!(segs.len(), 3, "{got:?}");
         for (g, want) in got.iter().zip([(5.0, 1.0), (12.0, 1.0), (12.0, 2.0)]) {
@@ -1510,7 +1496,7 @@ mod tests {
             })
             .collect();
         for (name, u) in [("one", one), ("idle then", idle_then), ("chirp", chirp), ("am", am)] {
-            assert!(sine_segments(&u, ts).is_empty(), "{name}: {:?}", sine_segments(&u, ts));
+            assert!(sine_segments(&u, ts, &R).is_empty(), "{name}: {:?}", sine_segments(&u, ts, &R));
         }
     }
 }
