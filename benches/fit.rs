@@ -11,11 +11,14 @@
 //!
 //! Before the timing, one run of each prints what it fitted or found.
 
-use boucwen_lab::diagnose::{self, Thresholds};
-use boucwen_lab::fit::{self, Averaging, ModelSpec, OeOptions};
-use boucwen_lab::hidden::{Case, Effect};
+use boucwen_lab::design::closed_loop;
+use boucwen_lab::diagnose;
+use boucwen_lab::fit::{self, Averaging, OeOptions};
+use boucwen_lab::fixtures::hidden::{Case, Effect};
+use boucwen_lab::model::ModelSpec;
 use boucwen_lab::record::Record;
-use boucwen_lab::{analysis, experiment};
+use boucwen_lab::rules::Rules;
+use boucwen_lab::signal::analysis;
 use boucwen_sim::{Bimorph, Scenario};
 use criterion::{Criterion, criterion_group, criterion_main};
 use std::hint::black_box;
@@ -29,9 +32,8 @@ fn fits(c: &mut Criterion) {
     let split = u.len() / 2;
     let f = analysis::estimate_drive(u, ts).expect("drive");
     let opt = OeOptions {
-        lm_starts: diagnose::TERM_STARTS,
         averaging: Averaging::Periods,
-        ..diagnose::fit_options(split, ts)
+        ..diagnose::plan::fit_options(split, ts, &Rules::default())
     };
     let mut g = c.benchmark_group("fit/oe");
     g.sample_size(20).measurement_time(Duration::from_secs(10));
@@ -61,14 +63,14 @@ fn diagnoses(c: &mut Criterion) {
     let mut g = c.benchmark_group("diagnose");
     g.sample_size(10).warm_up_time(Duration::from_millis(1)).measurement_time(Duration::from_secs(20));
     for (id, n) in [("10k", 10_000), ("100k", 100_000), ("1m", 1_000_000)] {
-        let u = experiment::sine(1.0, 23.0, ts, n).expect("drive");
+        let u = closed_loop::sine(1.0, 23.0, ts, n).expect("drive");
         let y = Bimorph::new(&scenario).and_then(|mut b| b.run(&u)).expect("simulation");
         let path = dir.join(format!("sine23-{id}.csv"));
         Record::new("sine23", 0.0, ts, u, y, None).and_then(|r| r.write(&path)).expect("record");
         let run = || {
             let r = Record::read(&path).expect("read");
-            r.validate_for_fit(diagnose::MIN_SAMPLES).expect("valid");
-            diagnose::diagnose(&r.u, &r.y, r.ts, &Thresholds::default()).expect("diagnosis")
+            r.validate_for_fit(Rules::default().sine.min_samples).expect("valid");
+            diagnose::diagnose(&r.u, &r.y, r.ts, &Rules::default()).expect("diagnosis")
         };
         let t0 = std::time::Instant::now();
         let d = run();

@@ -1,8 +1,8 @@
 //! `boucwen simulate`: run the virtual bimorph on a drive signal and write the record
-//! ([`boucwen_lab::simulate`]).
+//! ([`boucwen_lab::experiments::simulate`]).
 
 use anyhow::{Context, bail};
-use boucwen_lab::simulate::{self, Drive};
+use boucwen_lab::experiments::simulate::{self, Drive};
 use boucwen_sim::Scenario;
 use std::path::PathBuf;
 

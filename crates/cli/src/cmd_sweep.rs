@@ -1,12 +1,12 @@
 //! `boucwen sweep`: the paper's identification and compensation experiments over a frequency
 //! range on the virtual bimorph; with `--measured DIR`, the identification half from measured
-//! records ([`boucwen_lab::sweep_measured`]).
+//! records ([`boucwen_lab::experiments::sweep_measured`]).
 
 use crate::record_args::RecordArgs;
 use boucwen_lab::design::ResponseSource;
+use boucwen_lab::experiments::sweep::{self, HarmonicChoice, SweepOptions};
+use boucwen_lab::experiments::sweep_measured::{self, MeasuredInput};
 use boucwen_lab::report;
-use boucwen_lab::sweep::{self, HarmonicChoice, SweepOptions};
-use boucwen_lab::sweep_measured::{self, MeasuredInput};
 use boucwen_sim::Scenario;
 use clap::ValueEnum;
 use rayon::prelude::*;

@@ -3,8 +3,8 @@
 //! 40 Hz) give the harmonic orders the simulated sweep finds and `sweep.csv` with the
 //! simulated sweep's columns; bad input gives one line saying why.
 
+use boucwen_lab::experiments::sweep::{self, SweepOptions};
 use boucwen_lab::record::Record;
-use boucwen_lab::sweep::{self, SweepOptions};
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 

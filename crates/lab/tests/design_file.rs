@@ -5,7 +5,7 @@
 //!
 //! The files here are written by hand (no design is run), so the tests are fast.
 
-use boucwen_lab::board_design::{self, DesignFile};
+use boucwen_lab::design::board::{self as board_design, DesignFile};
 use boucwen_link::device::Device;
 use boucwen_link::message::{Message, SafetyParams};
 use boucwen_link::{Decoder, Packet};

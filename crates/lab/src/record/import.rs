@@ -1292,7 +1292,7 @@ fn import_from(
     }
     // An output that spans less than a nanometre or more than 10 mm as read is likely in
     // another unit.
-    let (lo, hi) = crate::analysis::extent(&y);
+    let (lo, hi) = y.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &v| (a.min(v), b.max(v)));
     let span = hi - lo;
     if span > 0.0 && !(MIN_SPAN_UM..=MAX_SPAN_UM).contains(&span) {
         let kind = ErrorKind::OutputSpan {

@@ -1,0 +1,21 @@
+//! The models the host fits and simulates.
+//!
+//! | module | what |
+//! |---|---|
+//! | [`host`] | the paper's actuator as identified on the host: the extended model with branches, a drift polynomial and an input delay |
+//! | [`terms`] | terms around and inside it: saturation, delay, creep, stiffening |
+//! | [`poles`] | the poles of a linear part: stability, resonance, decay |
+
+pub mod host;
+pub mod poles;
+pub mod terms;
+
+pub use host::{
+    Branch, HostModel, LoopShape, MAX_BRANCHES, MAX_DELAY, ModelError, ModelSpec, delayed, delayed_iter,
+};
+pub use terms::{TermModel, Terms};
+
+/// Smallest amplitude of a harmonic the model gets a branch for, relative to the output's
+/// fundamental: below this a term is not worth it. The sweep, `identify` and the board's
+/// design propose branches by it.
+pub const MIN_HARMONIC_REL: f64 = 0.02;
