@@ -92,6 +92,7 @@ pub mod bimorph;
 mod error;
 mod hysteresis;
 pub mod measure;
+pub mod oscillator;
 mod rng;
 pub mod scenario;
 
