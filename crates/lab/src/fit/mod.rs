@@ -59,9 +59,12 @@
 //! ([`Averaging::PeriodsAndTrend`]) and models it by a term of its own.
 
 mod error;
+pub mod linear;
 mod lm;
+pub mod lsq;
 mod model;
 mod options;
+pub mod oscillator;
 mod periodic;
 mod problem;
 mod rls;
