@@ -3,14 +3,19 @@
 //! the virtual oscillator from the published equations (other multisine realisations in
 //! steady state, the sine sweep from rest), all noise-free.
 //!
-//! `cargo run --release -p boucwen-lab --example oscillator_benchmark -- [train.csv] [--folds]`
+//! `cargo run --release -p boucwen-lab --example oscillator_benchmark -- [train.csv] [--folds] [--more]`
+//!
+//! `--folds` refits with each period of `train.csv` held out in turn; `--more` fits with `ν`
+//! free, and fits on a generated noisy sweep (cubic-spline input) instead of `train.csv`.
 
 use boucwen_lab::fit::Tolerances;
 use boucwen_lab::fit::linear::{OeOrders, fit_linear_oe, rms_diff, select_linear_oe};
 use boucwen_lab::fit::oscillator::{
     InputReconstruction, OscillatorModel, OscillatorOptions, fit_oscillator, free_run_rms,
 };
-use boucwen_sim::oscillator::{BoucWenOscillator, FS_HZ, MULTISINE_PERIOD, Multisine, SWEEP_SAMPLES};
+use boucwen_sim::oscillator::{
+    BoucWenOscillator, FS_HZ, MULTISINE_PERIOD, Multisine, SWEEP_SAMPLES, add_noise,
+};
 use std::time::Instant;
 
 fn read(path: &str) -> Result<(Vec<f64>, Vec<f64>), Box<dyn std::error::Error>> {
@@ -142,22 +147,58 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         // Each period held out in turn: fitted on the others' samples (the simulation still
         // runs from rest through the whole record, so the held-out period is free-run).
         for p in 0..periods {
-            let scored: Vec<usize> = (0..periods).filter(|&q| q != p).collect();
-            // Contiguous scored range: the periods before the held-out one, or after it.
-            let range = if p == periods - 1 { 0..p * n } else { (p + 1) * n..periods * n };
-            let _ = scored;
-            let o = OscillatorOptions { scored: Some(range.clone()), ..opt.clone() };
+            let scored = vec![0..p * n, (p + 1) * n..periods * n];
+            let o = OscillatorOptions { scored: scored.clone(), ..opt.clone() };
             let f = fit_oscillator(&u, &y, ts, &o)?;
             let held = free_run_rms(&f.model, &u, &y, ts, input, p * n..(p + 1) * n)?;
             let test = rms_diff(&f.model.simulate_periodic(&tests[0].u, ts, 1)?, &tests[0].y);
             println!(
                 "fold: fitted on samples {:?}, period {} held out: {:.3} µm (fit {:.3} µm, multisine test 1 {:.3} µm)",
-                range,
+                scored,
                 p + 1,
                 held * um,
                 f.rms_fit * um,
                 test * um
             );
+        }
+    }
+    if args.iter().any(|a| a == "--more") {
+        let score = |m: &OscillatorModel| -> Result<(Vec<f64>, f64), Box<dyn std::error::Error>> {
+            let ms: Vec<f64> = tests
+                .iter()
+                .map(|t| m.simulate_periodic(&t.u, ts, 1).map(|s| rms_diff(&s, &t.y) * um))
+                .collect::<Result<_, _>>()?;
+            Ok((ms, rms_diff(&m.simulate(&sweep.u, ts)?, &sweep.y) * um))
+        };
+        let o = OscillatorOptions { fit_nu: true, ..opt.clone() };
+        let t0 = Instant::now();
+        let f = fit_oscillator(&u, &y, ts, &o)?;
+        let (ms, sw) = score(&f.model)?;
+        println!(
+            "ν free on train.csv: {:.2} s, fit {:.3} µm, ν = {:.5}; multisine tests {:.3?} µm, sweep {:.3} µm",
+            t0.elapsed().as_secs_f64(),
+            f.rms_fit * um,
+            f.model.params.nu,
+            ms,
+            sw
+        );
+        // Fitted on a generated sweep (40,000 samples from rest, 7.4 µm noise), the input
+        // reconstructed by the cubic spline.
+        let mut rec = truth.sweep_record(40_000, 20.0, 50.0, 40.0)?;
+        add_noise(&mut rec.y, 7.4e-6, 9);
+        let o = OscillatorOptions { input: InputReconstruction::CubicSpline, ..opt.clone() };
+        let t0 = Instant::now();
+        let f = fit_oscillator(&rec.u, &rec.y, ts, &o)?;
+        let (ms, sw) = score(&f.model)?;
+        println!(
+            "fitted on a generated 40,000-sample sweep: {:.2} s, fit {:.3} µm; multisine tests {:.3?} µm, full sweep {:.3} µm",
+            t0.elapsed().as_secs_f64(),
+            f.rms_fit * um,
+            ms,
+            sw
+        );
+        for (name, v) in f.model.params() {
+            println!("  {name} = {v:.6}");
         }
     }
     Ok(())

@@ -7,7 +7,7 @@
 //! the gradient half `Jᵀr` ([`Quadratic`]), or `None` where the parameters are not admissible
 //! (an unstable model, a negative mass): such a step is rejected as one that raises the cost.
 //! The iteration, the damping (Nielsen's rule, scaled by the largest diagonal of `JᵀJ` seen,
-//! as MINPACK) and the stopping criteria ([`Stop`], [`Tolerances`]) are those of the project's
+//! as MINPACK; a parameter whose column has been zero so far is held) and the stopping criteria ([`Stop`], [`Tolerances`]) are those of the project's
 //! fit of the extended model (`fit::lm`), written over a vector instead of
 //! [`Outer`](super::Outer).
 
@@ -97,7 +97,9 @@ pub fn levenberg_marquardt(
         loop {
             let mut a = cur.jtj.clone();
             for i in 0..nf {
-                a[(i, i)] += mu * scale[i].powi(2).max(1e-300);
+                // A parameter the cost does not see yet (a zero column) is held: its row is
+                // made the identity, and its gradient is zero.
+                a[(i, i)] += if scale[i] > 0.0 { mu * scale[i].powi(2) } else { 1.0 };
             }
             let Some(ch) = a.cholesky() else {
                 mu *= nu;

@@ -57,7 +57,8 @@
 //! 2. Levenberg–Marquardt ([`lsq`](super::lsq)) on the simulation error of the scored
 //!    samples, with the exact Jacobian from the forward sensitivity equations integrated
 //!    alongside the simulation (above); a first pass at [`OscillatorOptions::coarse_substeps`]
-//!    steps per sample without the decimation, then the full model.
+//!    steps per sample without the decimation, then the full model, both with `ν = 1`;
+//!    with [`OscillatorOptions::fit_nu`] a last pass frees `ν` (kept `≥ 1`).
 
 use super::linear::{LinearModel, OeOrders, fit_linear_oe, rms_diff};
 use super::lsq::{self, Quadratic};
@@ -400,8 +401,9 @@ pub struct OscillatorOptions {
     pub input: InputReconstruction,
     /// Fit `ν` (otherwise fixed at 1).
     pub fit_nu: bool,
-    /// Samples scored (`None`: all); the simulation always runs from rest at sample 0.
-    pub scored: Option<Range<usize>>,
+    /// Ranges of samples scored (empty: all), e.g. every period but one held out; the
+    /// simulation always runs from rest at sample 0 through the whole record.
+    pub scored: Vec<Range<usize>>,
     /// Steps per sample of a first, cheaper pass (output read at the instants); `None`: no
     /// such pass.
     pub coarse_substeps: Option<usize>,
@@ -412,13 +414,19 @@ pub struct OscillatorOptions {
 impl OscillatorOptions {
     /// The benchmark's setting: 20 substeps, FIR decimation, a periodic input of `period`
     /// samples, `ν = 1`, every sample scored, a first pass at 5 substeps.
+    ///
+    /// ```
+    /// use boucwen_lab::fit::oscillator::{InputReconstruction, OscillatorOptions};
+    /// let opt = OscillatorOptions::benchmark(8192);
+    /// assert_eq!(opt.input, InputReconstruction::Periodic { period: 8192 });
+    /// ```
     pub fn benchmark(period: usize) -> Self {
         Self {
             substeps: 20,
             output: OutputSampling::FirDecimation,
             input: InputReconstruction::Periodic { period },
             fit_nu: false,
-            scored: None,
+            scored: Vec::new(),
             coarse_substeps: Some(5),
             tolerances: Tolerances { cost: 1e-9, step: 1e-9, gradient: 1e-7, max_iter: 100 },
         }
@@ -448,7 +456,7 @@ fn evaluate(
     x: &[f64],
     u_fine: &[f64],
     y: &[f64],
-    scored: &Range<usize>,
+    scored: &[Range<usize>],
     h: f64,
     substeps: usize,
     output: OutputSampling,
@@ -463,8 +471,9 @@ fn evaluate(
     signals.extend(sens);
     let sampled: Vec<Vec<f64>> =
         signals.par_iter().map(|s| to_samples(s, n, substeps, output)).collect::<Result<_, _>>().ok()?;
-    let r: Vec<f64> = scored.clone().map(|i| sampled[0][i] - y[i]).collect();
-    let cols: Vec<Vec<f64>> = sampled[1..].iter().map(|s| s[scored.clone()].to_vec()).collect();
+    let idx = || scored.iter().flat_map(|r| r.clone());
+    let r: Vec<f64> = idx().map(|i| sampled[0][i] - y[i]).collect();
+    let cols: Vec<Vec<f64>> = sampled[1..].iter().map(|s| idx().map(|i| s[i]).collect()).collect();
     let q = Quadratic::from_columns(&r, &cols);
     q.cost.is_finite().then_some(q)
 }
@@ -479,15 +488,18 @@ pub fn fit_oscillator(
 ) -> Result<OscillatorFit, FitError> {
     let n = u.len().min(y.len());
     let (u, y) = (&u[..n], &y[..n]);
-    let scored = opt.scored.clone().unwrap_or(0..n);
-    if scored.end > n || scored.len() < 100 {
-        return Err(FitError::TooFewSamples { have: scored.len().min(n), need: 100 });
+    let scored = if opt.scored.is_empty() { vec![0..n] } else { opt.scored.clone() };
+    let count: usize = scored.iter().map(|r| r.len()).sum();
+    if scored.iter().any(|r| r.end > n) || count < 100 {
+        return Err(FitError::TooFewSamples { have: count.min(n), need: 100 });
     }
+    // The linear start is fitted on the longest scored range.
+    let longest = scored.iter().max_by_key(|r| r.len()).cloned().unwrap_or(0..n);
     if y.iter().any(|v| !v.is_finite()) {
         return Err(FitError::Core(boucwen_core::Error::NonFinite("y")));
     }
     // 1. One linear mode.
-    let lin = fit_linear_oe(u, y, OeOrders { nb: 3, nf: 2, nk: 0 }, scored.clone(), &opt.tolerances)?;
+    let lin = fit_linear_oe(u, y, OeOrders { nb: 3, nf: 2, nk: 0 }, longest, &opt.tolerances)?;
     let (w0, zeta, gain) = lin.model.mode(ts).ok_or(FitError::NoStableModel)?;
     if !(gain > 0.0 && w0 > 0.0) {
         return Err(FitError::NoStableModel);
@@ -495,17 +507,21 @@ pub fn fit_oscillator(
     let keff = 1.0 / gain;
     let m = keff / (w0 * w0);
     let mut x: Vec<f64> = vec![m, 2.0 * zeta * w0 * m, 0.5 * keff, 0.5 * keff, 0.0, 0.0];
-    if opt.fit_nu {
-        x.push(1.0);
-    }
-    // 2. Output error: a coarse pass, then the full model.
+    // 2. Output error: a coarse pass, then the full model, with ν = 1; then, if asked, the
+    //    full model with ν free from there (∂ŷ/∂ν vanishes while the loop is off).
     let mut passes = Vec::new();
     if let Some(cs) = opt.coarse_substeps.filter(|&cs| cs != opt.substeps) {
-        passes.push((cs, OutputSampling::Instant));
+        passes.push((cs, OutputSampling::Instant, false));
     }
-    passes.push((opt.substeps, opt.output));
+    passes.push((opt.substeps, opt.output, false));
+    if opt.fit_nu {
+        passes.push((opt.substeps, opt.output, true));
+    }
     let (mut iterations, mut evaluations, mut stop, mut cost) = (0, 0, Stop::IterationLimit, f64::NAN);
-    for (substeps, output) in passes {
+    for (substeps, output, nu_free) in passes {
+        if nu_free {
+            x.push(1.0);
+        }
         let probe = OscillatorModel { params: OscillatorParams::BENCHMARK, substeps, output };
         // For a periodic input the fine grid reaches past the record (the filter's tail).
         let u_fine = probe.fine_input(u, opt.input)?;
@@ -526,7 +542,7 @@ pub fn fit_oscillator(
     Ok(OscillatorFit {
         model,
         linear: lin.model,
-        rms_fit: (cost / scored.len() as f64).sqrt(),
+        rms_fit: (cost / count as f64).sqrt(),
         stop,
         iterations,
         evaluations,
