@@ -530,7 +530,7 @@ pub fn interpolate_periodic(x: &[f64], period: usize, upsampling: usize) -> Resu
 
 /// Adds white Gaussian noise of standard deviation `sigma` to `y` (seeded xoshiro256++).
 pub fn add_noise(y: &mut [f64], sigma: f64, seed: u64) {
-    let mut rng = Rng::new(seed, 0x6e6f_6973_65);
+    let mut rng = Rng::new(seed, 0x6e_6f69_7365);
     for v in y {
         *v += sigma * rng.normal();
     }

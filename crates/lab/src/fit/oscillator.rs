@@ -488,7 +488,8 @@ pub fn fit_oscillator(
 ) -> Result<OscillatorFit, FitError> {
     let n = u.len().min(y.len());
     let (u, y) = (&u[..n], &y[..n]);
-    let scored = if opt.scored.is_empty() { vec![0..n] } else { opt.scored.clone() };
+    let full = 0..n;
+    let scored: &[Range<usize>] = if opt.scored.is_empty() { std::slice::from_ref(&full) } else { &opt.scored };
     let count: usize = scored.iter().map(|r| r.len()).sum();
     if scored.iter().any(|r| r.end > n) || count < 100 {
         return Err(FitError::TooFewSamples { have: count.min(n), need: 100 });
@@ -526,7 +527,7 @@ pub fn fit_oscillator(
         // For a periodic input the fine grid reaches past the record (the filter's tail).
         let u_fine = probe.fine_input(u, opt.input)?;
         let h = ts / substeps as f64;
-        let eval = |x: &[f64]| evaluate(x, &u_fine, y, &scored, h, substeps, output);
+        let eval = |x: &[f64]| evaluate(x, &u_fine, y, scored, h, substeps, output);
         let r = lsq::levenberg_marquardt(&x, &opt.tolerances, eval).ok_or(FitError::NoStableModel)?;
         x = r.x;
         iterations += r.iterations;
