@@ -489,7 +489,8 @@ pub fn fit_oscillator(
     let n = u.len().min(y.len());
     let (u, y) = (&u[..n], &y[..n]);
     let full = 0..n;
-    let scored: &[Range<usize>] = if opt.scored.is_empty() { std::slice::from_ref(&full) } else { &opt.scored };
+    let scored: &[Range<usize>] =
+        if opt.scored.is_empty() { std::slice::from_ref(&full) } else { &opt.scored };
     let count: usize = scored.iter().map(|r| r.len()).sum();
     if scored.iter().any(|r| r.end > n) || count < 100 {
         return Err(FitError::TooFewSamples { have: count.min(n), need: 100 });
