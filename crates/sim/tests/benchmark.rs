@@ -7,8 +7,8 @@ use boucwen_sim::oscillator::{BoucWenOscillator, MULTISINE_PERIOD, UPSAMPLING, i
 
 #[test]
 fn reproduces_train_csv_to_its_noise() {
-    let path =
-        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data/bouc-wen-benchmark/train.csv");
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../../../shared/data/bouc-wen-benchmark/train.csv");
     let Ok(text) = std::fs::read_to_string(&path) else {
         eprintln!("skipped: {} not found", path.display());
         return;
