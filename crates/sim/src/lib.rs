@@ -87,6 +87,7 @@
 //! | [`scenario`] | the parameters, TOML reading, validation, switches for tests |
 //! | [`bimorph`] | the plant: [`Bimorph::step`], [`Bimorph::step_detail`], [`Bimorph::run`] |
 //! | [`measure`] | least-squares harmonic fit of a record (amplitude and phase per order) |
+//! | [`oscillator`] | the Bouc–Wen oscillator of the Noël–Schoukens benchmark, its integrator, decimation and inputs |
 
 pub mod bimorph;
 mod error;

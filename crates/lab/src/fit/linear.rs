@@ -14,7 +14,7 @@
 //!    problem on `u` and `y` filtered by the last `1/F`), which converge toward the
 //!    output-error solution for white noise; an unstable `F` is contracted
 //!    (`f_j ← ρ^j f_j`) until stable.
-//! 2. Levenberg–Marquardt ([`lsq`](super::lsq)) on the simulation error with its exact
+//! 2. Levenberg–Marquardt ([`lsq`]) on the simulation error with its exact
 //!    Jacobian: `∂ŷ/∂b_i = q^(−nk−i) u/F` and `∂ŷ/∂f_j = −q^(−j) ŷ/F`, two filtered signals
 //!    and their shifts. Unstable candidates are rejected (Schur–Cohn step-down test).
 //!

@@ -51,10 +51,10 @@
 //!
 //! ## The fit ([`fit_oscillator`])
 //! 1. A linear output-error model of orders `nb = 3, nf = 2, nk = 0`
-//!    ([`fit_linear_oe`](super::linear::fit_linear_oe)) gives one mode: `ω₀`, `ζ` and the
+//!    ([`fit_linear_oe`]) gives one mode: `ω₀`, `ζ` and the
 //!    static gain `K`, so `k + α = 1/K`, `m = (k + α)/ω₀²`, `c = 2ζω₀m`; the start splits the
 //!    stiffness evenly between `k` and `α` with the loop off (`βγ = βδ = 0`, `ν = 1`).
-//! 2. Levenberg–Marquardt ([`lsq`](super::lsq)) on the simulation error of the scored
+//! 2. Levenberg–Marquardt ([`lsq`]) on the simulation error of the scored
 //!    samples, with the exact Jacobian from the forward sensitivity equations integrated
 //!    alongside the simulation (above); a first pass at [`OscillatorOptions::coarse_substeps`]
 //!    steps per sample without the decimation, then the full model, both with `ν = 1`;
