@@ -197,7 +197,8 @@ impl OscillatorModel {
 
     /// The steady-state output over one period `u_period` of a periodic input: the period
     /// (DFT-interpolated) is run `warmup_periods` times from rest, then once more, and that
-    /// last period is returned (decimated with the periodic continuation on both sides).
+    /// last period is returned (decimated with the periodic continuation on both sides when
+    /// `warmup_periods ≥ 1`).
     pub fn simulate_periodic(
         &self,
         u_period: &[f64],
