@@ -5,8 +5,12 @@
 //! | [`host`] | the paper's actuator as identified on the host: the extended model with branches, a drift polynomial and an input delay |
 //! | [`terms`] | terms around and inside it: saturation, delay, creep, stiffening |
 //! | [`poles`] | the poles of a linear part: stability, resonance, decay |
+//! | [`linear`] | linear output-error models of any order |
+//! | [`oscillator`] | the Bouc–Wen oscillator: hysteresis as a restoring force |
 
 pub mod host;
+pub mod linear;
+pub mod oscillator;
 pub mod poles;
 pub mod terms;
 
