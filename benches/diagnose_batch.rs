@@ -26,12 +26,12 @@
 
 use boucwen_lab::diagnose::periodic::Realisation;
 use boucwen_lab::diagnose::{self, Diagnosis, Kind};
-use boucwen_lab::rules::Rules;
 use boucwen_lab::fixtures::effects::{
     Nonlinearity, PeriodicCase, PeriodicDrive, SineCase, SineEffect, Truth,
 };
 use boucwen_lab::fixtures::hidden::{Case, Effect};
 use boucwen_lab::record::Record;
+use boucwen_lab::rules::Rules;
 use rayon::prelude::*;
 use std::time::Instant;
 

@@ -14,9 +14,9 @@
 //! be drawn.
 
 use boucwen_lab::diagnose;
-use boucwen_lab::rules::Rules;
 use boucwen_lab::fixtures::messy::{Mess, Messy};
 use boucwen_lab::record::import_text;
+use boucwen_lab::rules::Rules;
 use rayon::prelude::*;
 use std::time::Instant;
 

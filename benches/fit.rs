@@ -16,11 +16,11 @@
 
 use boucwen_lab::design::closed_loop;
 use boucwen_lab::diagnose;
-use boucwen_lab::rules::Rules;
 use boucwen_lab::fit::{self, Averaging, OeOptions};
 use boucwen_lab::fixtures::hidden::{Case, Effect};
 use boucwen_lab::model::ModelSpec;
 use boucwen_lab::record::Record;
+use boucwen_lab::rules::Rules;
 use boucwen_lab::signal::analysis;
 use boucwen_lab::fit::oscillator::{OscillatorOptions, fit_oscillator};
 use boucwen_sim::oscillator::{FS_HZ, MULTISINE_PERIOD};
@@ -36,7 +36,10 @@ fn fits(c: &mut Criterion) {
     let (u, y, ts) = (&rec.u, &rec.y, rec.ts);
     let split = u.len() / 2;
     let f = analysis::estimate_drive(u, ts).expect("drive");
-    let opt = OeOptions { averaging: Averaging::Periods, ..diagnose::plan::fit_options(split, ts, &Rules::default()) };
+    let opt = OeOptions {
+        averaging: Averaging::Periods,
+        ..diagnose::plan::fit_options(split, ts, &Rules::default())
+    };
     let mut g = c.benchmark_group("fit/oe");
     g.sample_size(20).measurement_time(Duration::from_secs(10));
     for (id, spec) in

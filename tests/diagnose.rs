@@ -13,10 +13,10 @@
 
 use boucwen_lab::diagnose::evidence::Evidence;
 use boucwen_lab::diagnose::{self, Diagnosis, Kind};
-use boucwen_lab::report::diagnosis::{sine_json, sine_text, steps_sentence};
-use boucwen_lab::rules::Rules;
 use boucwen_lab::fixtures::hidden::{Case, Effect};
 use boucwen_lab::record::Record;
+use boucwen_lab::report::diagnosis::{sine_json, sine_text, steps_sentence};
+use boucwen_lab::rules::Rules;
 use boucwen_sim::{Bimorph, Scenario};
 
 fn diagnosed(effect: Effect, seed: u64) -> (Case, Diagnosis) {

@@ -8,12 +8,12 @@
 
 use boucwen_lab::diagnose::periodic::Realisation;
 use boucwen_lab::diagnose::{self, Outcome};
-use boucwen_lab::report::diagnosis::json;
-use boucwen_lab::rules::Rules;
 use boucwen_lab::fixtures::effects::{
     Nonlinearity, PeriodicCase, PeriodicDrive, SineCase, SineEffect, Truth,
 };
 use boucwen_lab::record::Record;
+use boucwen_lab::report::diagnosis::json;
+use boucwen_lab::rules::Rules;
 use serde_json::Value;
 
 fn outcome(records: &[Record]) -> Outcome {

@@ -12,8 +12,8 @@
 
 use boucwen_lab::diagnose::periodic::Realisation;
 use boucwen_lab::diagnose::{self, DiagnoseError, Kind, Outcome};
-use boucwen_lab::rules::Rules;
 use boucwen_lab::record::{ImportOptions, import_text};
+use boucwen_lab::rules::Rules;
 use boucwen_lab::signal::steady::DriveKind;
 use std::f64::consts::TAU;
 use std::fmt::Write as _;

@@ -8,10 +8,10 @@
 
 use boucwen_lab::diagnose::periodic::Realisation;
 use boucwen_lab::diagnose::{self, Outcome};
-use boucwen_lab::rules::Rules;
 use boucwen_lab::fixtures::effects::{Nonlinearity, PeriodicCase, PeriodicDrive, SineCase, SineEffect};
 use boucwen_lab::fixtures::hidden::{Case, Effect};
 use boucwen_lab::record::Record;
+use boucwen_lab::rules::Rules;
 use serde_json::Value;
 
 fn outcome(records: &[Record], flip: bool) -> Value {
@@ -19,8 +19,7 @@ fn outcome(records: &[Record], flip: bool) -> Value {
         records.iter().map(|r| r.y.iter().map(|&y| if flip { -y } else { y }).collect()).collect();
     let recs: Vec<Realisation> =
         records.iter().zip(&ys).map(|(r, y)| Realisation { u: &r.u, y, t0: r.t0, given: None }).collect();
-    let o: Outcome =
-        diagnose::diagnose_drive(&recs, records[0].ts, &Rules::default()).expect("diagnosis");
+    let o: Outcome = diagnose::diagnose_drive(&recs, records[0].ts, &Rules::default()).expect("diagnosis");
     boucwen_lab::report::diagnosis::json(&o, &Rules::default())
 }
 

@@ -151,7 +151,14 @@ fn stepped(
     Ok(out)
 }
 
-fn write_report(d: &Outcome, u: &[f64], y: &[f64], name: &str, dir: &Path, rules: &Rules) -> Result<(), String> {
+fn write_report(
+    d: &Outcome,
+    u: &[f64],
+    y: &[f64],
+    name: &str,
+    dir: &Path,
+    rules: &Rules,
+) -> Result<(), String> {
     match d {
         Outcome::Sine(d) => report::write_diagnosis(d, d.analysed(u), d.analysed(y), name, dir, rules),
         Outcome::Periodic(d) => report::write_periodic(d, name, dir, rules),

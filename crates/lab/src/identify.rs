@@ -163,7 +163,7 @@ pub struct Identified {
 fn standing_out(y: &[f64], f: f64, ts: f64, r: &Rules) -> u32 {
     let n = analysis::whole_periods(y.len(), f, ts);
     let amp = analysis::harmonics(&y[..n], f, ts, 1).first().map_or(0.0, |t| t.amp);
-    let min = crate::experiments::sweep::MIN_HARMONIC_REL * amp;
+    let min = crate::model::MIN_HARMONIC_REL * amp;
     analysis::dominant_odd_harmonic(&y[..n], f, ts, 0.0, min)
         .map(|(order, _)| order)
         .filter(|&o| o <= r.sine.max_term_order && f64::from(o) * f < 0.5 / ts)
@@ -185,9 +185,17 @@ fn split_at(drive: &Drive, start: usize, len: usize, fit_fraction: f64) -> usize
 }
 
 /// Identifies a record (see the module docs); `given` is `--window` in samples.
-pub fn identify(r: &Record, given: Option<(usize, usize)>, o: &Options, rules: &Rules) -> Result<Identified, IdentifyError> {
+pub fn identify(
+    r: &Record,
+    given: Option<(usize, usize)>,
+    o: &Options,
+    rules: &Rules,
+) -> Result<Identified, IdentifyError> {
     if !(o.fit_fraction.is_finite() && (0.1..=0.9).contains(&o.fit_fraction)) {
-        return Err(IdentifyError::Option(format!("--fit-fraction {}: must be between 0.1 and 0.9", o.fit_fraction)));
+        return Err(IdentifyError::Option(format!(
+            "--fit-fraction {}: must be between 0.1 and 0.9",
+            o.fit_fraction
+        )));
     }
     let ts = r.ts;
     let (w, drive) = steady::steady_window(&r.u, &r.y, ts, given, rules)?;
@@ -205,7 +213,12 @@ pub fn identify(r: &Record, given: Option<(usize, usize)>, o: &Options, rules: &
     let split = split_at(&drive, start, w.end - w.start, o.fit_fraction);
     let drive_hz = match o.drive_hz {
         Some(f) if f.is_finite() && f > 0.0 && f < 0.5 / ts => f,
-        Some(f) => return Err(IdentifyError::Option(format!("--drive-hz {f}: must be above 0 and below {} Hz", 0.5 / ts))),
+        Some(f) => {
+            return Err(IdentifyError::Option(format!(
+                "--drive-hz {f}: must be above 0 and below {} Hz",
+                0.5 / ts
+            )));
+        }
         None => drive.freq_hz,
     };
     let harmonics = match o.structure {
@@ -217,12 +230,20 @@ pub fn identify(r: &Record, given: Option<(usize, usize)>, o: &Options, rules: &
             if !matches!(drive.kind, DriveKind::Sine | DriveKind::Periodic) && o.drive_hz.is_none() {
                 return Err(IdentifyError::NoDriveFrequency { drive: drive.describe() });
             }
-            if o.harmonics.is_empty() { vec![standing_out(&y[start..split], drive_hz, ts, rules)] } else { o.harmonics.clone() }
+            if o.harmonics.is_empty() {
+                vec![standing_out(&y[start..split], drive_hz, ts, rules)]
+            } else {
+                o.harmonics.clone()
+            }
         }
     };
     let spec = ModelSpec { drive_hz: drive_hz.max(1e-3), harmonics, drift_degree: None };
     // The output is averaged over periods only in steady state: the model has no drift term.
-    let mut opt = OeOptions { require_invertible: o.invertible, averaging: Averaging::Periods, ..fit_options(split, ts, rules) };
+    let mut opt = OeOptions {
+        require_invertible: o.invertible,
+        averaging: Averaging::Periods,
+        ..fit_options(split, ts, rules)
+    };
     opt.skip = start.max(opt.skip.min(split.saturating_sub(rules.sine.fit_min_samples)));
     let (model, fit) = match o.method {
         Method::Oe => {
@@ -234,7 +255,8 @@ pub fn identify(r: &Record, given: Option<(usize, usize)>, o: &Options, rules: &
     };
     let sim = model.simulate(u, ts)?;
     let mut check = ModelCheck::of(&model.ext.ar, &sim[split..], &y[split..], ts, &rules.checks);
-    check.check_amplitudes(&model.ext.bw, &model.ext.ar, u, ts, &rules.checks, |v| model.simulate(v, ts).ok());
+    check
+        .check_amplitudes(&model.ext.bw, &model.ext.ar, u, ts, &rules.checks, |v| model.simulate(v, ts).ok());
     let fitted_stable = checks::instability(&model.ext.ar, &sim[..split], ts).is_none();
     Ok(Identified {
         fit_rms_um: fitted_stable.then(|| analysis::rms_diff(&y[opt.skip..split], &sim[opt.skip..split])),

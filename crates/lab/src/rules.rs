@@ -650,7 +650,10 @@ impl Rules {
         share("window.max_lag_share", w.max_lag_share)?;
         share("window.grid_max_share", w.grid_max_share)?;
         if !(w.block_growth.is_finite() && w.block_growth > 1.0) {
-            return Err(RulesError::Invalid { field: "window.block_growth", must: "a finite factor above 1" });
+            return Err(RulesError::Invalid {
+                field: "window.block_growth",
+                must: "a finite factor above 1",
+            });
         }
         count("window.first_block_samples", w.first_block_samples)?;
         count("window.spread_blocks", w.spread_blocks)?;
@@ -683,7 +686,10 @@ impl Rules {
         share("checks.ratchet_follow", k.ratchet_follow)?;
         share("checks.ratchet_fit_share", k.ratchet_fit_share)?;
         if !(k.min_fit_pct.is_finite() && k.min_fit_pct <= 100.0) {
-            return Err(RulesError::Invalid { field: "checks.min_fit_pct", must: "a percentage of at most 100" });
+            return Err(RulesError::Invalid {
+                field: "checks.min_fit_pct",
+                must: "a percentage of at most 100",
+            });
         }
         Ok(())
     }

@@ -3,11 +3,11 @@
 
 use boucwen_lab::diagnose::evidence::{Evidence, NotKept};
 use boucwen_lab::diagnose::{self, Diagnosis, Kind};
-use boucwen_lab::report::diagnosis::{sine_json, sine_text};
-use boucwen_lab::rules::Rules;
 use boucwen_lab::fixtures::hidden::Effect;
 use boucwen_lab::fixtures::messy::{Mess, Messy};
 use boucwen_lab::record::{ImportOptions, import_text};
+use boucwen_lab::report::diagnosis::{sine_json, sine_text};
+use boucwen_lab::rules::Rules;
 
 fn diagnosed(mess: Mess, effect: Effect, seed: u64) -> (Messy, Diagnosis) {
     let m = Messy::generate(mess, effect, seed).expect("a messy record");
@@ -62,8 +62,8 @@ fn a_slow_drive_with_few_periods_is_diagnosed_on_whole_periods() {
     let r = import_text(&m.text, "slow.csv", &m.opts).unwrap().record;
     let p = (1.0 / (m.drive_hz * r.ts)) as usize;
     let cut = 3 * p + 300;
-    let e = diagnose::diagnose_record(&r.u[..cut], &r.y[..cut], r.ts, 0.0, None, &Rules::default())
-        .unwrap_err();
+    let e =
+        diagnose::diagnose_record(&r.u[..cut], &r.y[..cut], r.ts, 0.0, None, &Rules::default()).unwrap_err();
     let msg = e.to_string();
     assert!(msg.contains("holds 2 whole periods") || msg.contains("holds 3 whole periods"), "{msg}");
     assert!(msg.contains("diagnose needs at least 4 (half fitted, half held out)"), "{msg}");
@@ -153,7 +153,11 @@ fn a_harmonic_the_drive_itself_accounts_for_is_not_blamed_on_the_actuator() {
         let t = d.trials.iter().find(|t| t.candidate.order == Some(3)).expect("a 3rd harmonic trial");
         assert!(t.gain_pct >= 50.0 && !t.kept, "{t:?}");
         let j = sine_json(&d, &Rules::default());
-        assert!(j["drive_note"].as_str().is_some_and(|n| n.contains("the drive itself carries")), "{}", j["drive_note"]);
+        assert!(
+            j["drive_note"].as_str().is_some_and(|n| n.contains("the drive itself carries")),
+            "{}",
+            j["drive_note"]
+        );
     }
     // Where the actuator's own 3rd harmonic is the larger part, it is still named.
     let (_, d) = assert_right(Mess::DriveHarmonics, Effect::OddHarmonic(3), 5016);

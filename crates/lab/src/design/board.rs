@@ -17,7 +17,7 @@
 //!    model's free run on it, the same percentage.
 //! 4. **Harmonics found.** The odd harmonics of `f` (3rd to 9th, below 0.45 of the sample
 //!    rate) whose amplitude in the fitted part of the output is at least
-//!    [`crate::experiments::sweep::MIN_HARMONIC_REL`] of the fundamental, the two largest, get
+//!    [`crate::model::MIN_HARMONIC_REL`] of the fundamental, the two largest, get
 //!    branches: the enhanced model fitted the same way is the *prediction model*, the best
 //!    account of the actuator the records give.
 //! 5. **α.** The amplitude asked for, else eq. (25) on the sine record.
@@ -727,7 +727,7 @@ pub fn design_from_records(records: &[Record], opts: &DesignOptions) -> Result<D
             n >= 3
                 && n % 2 == 1
                 && n as f64 * f < 0.45 / ts
-                && amp >= crate::experiments::sweep::MIN_HARMONIC_REL * fundamental
+                && amp >= crate::model::MIN_HARMONIC_REL * fundamental
         })
         .collect();
     found.sort_by(|a, b| b.1.total_cmp(&a.1));

@@ -44,8 +44,8 @@ use super::residual::Residual;
 use crate::fit::{self, Averaging, DelaySearch, FitError, OeOptions, Samples};
 use crate::fit::{Criterion, refine};
 use crate::model::terms::{Param, Relaxation, TermModel};
-use crate::rules::{CauseRules, Rules, TermRules};
 use crate::model::{Branch, HostModel, ModelSpec};
+use crate::rules::{CauseRules, Rules, TermRules};
 use crate::signal::analysis::{self, Tone};
 use rayon::prelude::*;
 
@@ -655,7 +655,11 @@ mod tests {
         let ts = 1e-3;
         let x = flattened_sine(10.0, ts);
         let h = analysis::harmonics(&x, 10.0, ts, 9);
-        assert!(clipping_series(&h, &CauseRules::default()), "{:?}", h.iter().map(|t| t.amp).collect::<Vec<_>>());
+        assert!(
+            clipping_series(&h, &CauseRules::default()),
+            "{:?}",
+            h.iter().map(|t| t.amp).collect::<Vec<_>>()
+        );
         let pure: Vec<f64> = (0..4000)
             .map(|k| {
                 let th = std::f64::consts::TAU * 10.0 * k as f64 * ts;

@@ -132,7 +132,8 @@ pub fn ratchet_um(sim: &[f64], period: Option<f64>) -> Option<f64> {
 /// than `checks.ratchet_rel` of it, and the output does not move with it to within
 /// `checks.ratchet_follow` of the move.
 pub fn ratchets(moves_um: f64, y_moves_um: f64, amp_um: f64, r: &CheckRules) -> bool {
-    moves_um.abs() > r.ratchet_rel * amp_um && (moves_um - y_moves_um).abs() > r.ratchet_follow * moves_um.abs()
+    moves_um.abs() > r.ratchet_rel * amp_um
+        && (moves_um - y_moves_um).abs() > r.ratchet_follow * moves_um.abs()
 }
 
 #[cfg(test)]
@@ -151,7 +152,9 @@ mod tests {
         let blows_up = |k: f64| Some(vec![if k > 1.0 { 2.0 * Y_LIMIT_UM } else { 1.0 }; 100]);
         assert_eq!(narrow(&bounded, &ar, ts, &r, fine), None);
         let shape = narrow(&unbounded, &ar, ts, &r, fine).expect("an unbounded loop is noted");
-        assert!(shape.unbounded && shape.diverges_at.is_empty() && (shape.gamma_plus_beta + 0.05).abs() < 1e-12);
+        assert!(
+            shape.unbounded && shape.diverges_at.is_empty() && (shape.gamma_plus_beta + 0.05).abs() < 1e-12
+        );
         let runs = narrow(&bounded, &ar, ts, &r, blows_up).expect("a diverging run is noted");
         assert_eq!(runs.diverges_at, vec![1.5]);
         assert!(!runs.unbounded);

@@ -3,10 +3,10 @@
 //! diagnosed on its own (its own steady window, start-up and model), on all cores. The delay
 //! is measured from the first step only: after it the actuator was not at rest.
 
+use super::Outcome;
 use super::error::DiagnoseError;
 use super::plan::plan_in;
 use super::sine::diagnose_planned;
-use super::Outcome;
 use crate::rules::Rules;
 use crate::signal::steady::{self, SineSegment};
 use rayon::prelude::*;

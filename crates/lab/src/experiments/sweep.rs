@@ -376,9 +376,7 @@ fn choose_order(
     }
 }
 
-/// Smallest amplitude of a harmonic the model gets a branch for, relative to the output's
-/// fundamental: below this a term is not worth it.
-pub const MIN_HARMONIC_REL: f64 = 0.02;
+pub use crate::model::MIN_HARMONIC_REL;
 
 /// The harmonic for the proposed law, from the tracking error under `u_f` alone.
 fn cancel_order(choice: HarmonicChoice, f: f64, ts: f64, uf: &Trace, settle: usize, alpha: f64) -> u32 {

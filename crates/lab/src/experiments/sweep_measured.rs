@@ -241,7 +241,8 @@ fn classify(input: MeasuredInput) -> Result<Classified, Skipped> {
     let r = input.record.map_err(&skip)?;
     r.validate_for_fit(MIN_SAMPLES).map_err(|e| skip(e.to_string()))?;
     let rules = Rules::default();
-    let (w, drive) = steady::steady_window(&r.u, &r.y, r.ts, None, &rules).map_err(|e| skip(e.to_string()))?;
+    let (w, drive) =
+        steady::steady_window(&r.u, &r.y, r.ts, None, &rules).map_err(|e| skip(e.to_string()))?;
     // A sine from where its steady drive starts to where it stops (the record's end if the
     // window was only cut to whole periods); a broadband record whole, as the structure fit
     // takes it (its steady window is a stretch of uniform level, not where it starts).

@@ -321,7 +321,8 @@ impl Scoring {
         match *self {
             Scoring::Samples(w) => w,
             Scoring::Periods { min_warmup, max_warmup, len } => {
-                let from = crate::model::poles::decay_samples(&phi.ar, DECAY_TO).max(min_warmup).min(max_warmup);
+                let from =
+                    crate::model::poles::decay_samples(&phi.ar, DECAY_TO).max(min_warmup).min(max_warmup);
                 Window { from, to: from + len }
             }
         }

@@ -17,8 +17,8 @@
 
 use super::options::{MIN_SLOPE, Outer, Param, operating_slope};
 use crate::model::MAX_DELAY;
-use crate::model::{HostModel, ModelSpec};
 use crate::model::poles;
+use crate::model::{HostModel, ModelSpec};
 use boucwen_core::model::{BoucWenParams, ExtendedParams, HarmonicBranch};
 use boucwen_core::signal::{Oscillator, sin_cos};
 use nalgebra::{DMatrix, DVector};

@@ -16,3 +16,8 @@ pub mod terms;
 
 pub use host::{Branch, HostModel, LoopShape, MAX_BRANCHES, MAX_DELAY, ModelError, ModelSpec, delayed};
 pub use terms::{TermModel, Terms};
+
+/// Smallest amplitude of a harmonic the model gets a branch for, relative to the output's
+/// fundamental: below this a term is not worth it. The sweep, `identify` and the board's
+/// design propose branches by it.
+pub const MIN_HARMONIC_REL: f64 = 0.02;

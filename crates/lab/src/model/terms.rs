@@ -39,8 +39,8 @@
 //! The joint refinement of a model that carries terms is the fit's
 //! ([`crate::fit::refine`]).
 
-use super::{HostModel, MAX_DELAY, ModelError, delayed};
 use super::poles;
+use super::{HostModel, MAX_DELAY, ModelError, delayed};
 use boucwen_core::signal::{Oscillator, sin_cos};
 
 /// A first-order relaxation state of the creep term.

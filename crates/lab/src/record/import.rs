@@ -1164,7 +1164,7 @@ pub fn import_text(text: &str, source: &str, opts: &ImportOptions) -> Result<Imp
     }
     // An output that spans less than a nanometre or more than 10 mm as read is likely in
     // another unit.
-    let (lo, hi) = crate::signal::analysis::extent(&y);
+    let (lo, hi) = y.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &v| (a.min(v), b.max(v)));
     let span = hi - lo;
     if span > 0.0 && !(MIN_SPAN_UM..=MAX_SPAN_UM).contains(&span) {
         let kind = ErrorKind::OutputSpan {

@@ -5,8 +5,8 @@ use crate::diagnose::evidence::{
     DelayEvidence, DistortionEvidence, Evidence, Finding, HarmonicEvidence, Instability, Kind, Lines, Narrow,
     NotKept, ResidualReading, Resonance, Step, Term, Trial,
 };
-use crate::diagnose::periodic::terms::term_name;
 use crate::diagnose::periodic::TermTrial;
+use crate::diagnose::periodic::terms::term_name;
 use crate::signal::distortion::{Level, Parity};
 use serde_json::{Value, json};
 use std::fmt::Write;
@@ -64,7 +64,9 @@ pub fn instability_text(i: &Instability) -> String {
             } else {
                 format!("{} s after its first sample", fmt_s(after_s))
             };
-            format!("its free run leaves the physical range (±{limit_um} µm) {when} over the held-out part: it diverges")
+            format!(
+                "its free run leaves the physical range (±{limit_um} µm) {when} over the held-out part: it diverges"
+            )
         }
         Instability::RunsAway { spans, range_um: [lo, hi], after_s } => format!(
             "its free run leaves {spans} times the output's span beyond its range ([{lo:.3}, {hi:.3}] µm) {} s after \
@@ -139,20 +141,22 @@ pub fn not_kept_text(n: &NotKept) -> String {
                 100.0 * floor,
             )
         }
-        NotKept::CarriesTooLittle { carried_um, need_um, min_term_rel, noise_factor, removed } => match removed {
-            Some((removed_um, multiple, noise_um)) => format!(
-                "its term carries only {carried_um:.4} µm in the model, less than the {need_um:.4} µm a term must carry \
+        NotKept::CarriesTooLittle { carried_um, need_um, min_term_rel, noise_factor, removed } => {
+            match removed {
+                Some((removed_um, multiple, noise_um)) => format!(
+                    "its term carries only {carried_um:.4} µm in the model, less than the {need_um:.4} µm a term must carry \
                  ({:.0} % of the output's RMS), and removes {removed_um:.4} µm from the held-out residual, less than \
                  {multiple} times its noise ({noise_um:.4} µm)",
-                100.0 * min_term_rel
-            ),
-            None => format!(
-                "its term carries only {carried_um:.4} µm in the model, less than the {need_um:.4} µm a term must carry \
+                    100.0 * min_term_rel
+                ),
+                None => format!(
+                    "its term carries only {carried_um:.4} µm in the model, less than the {need_um:.4} µm a term must carry \
                  ({:.0} % of the output's fundamental RMS{})",
-                100.0 * min_term_rel,
-                noise_factor.map_or(String::new(), |k| format!(", or {k} times the residual's noise"))
-            ),
-        },
+                    100.0 * min_term_rel,
+                    noise_factor.map_or(String::new(), |k| format!(", or {k} times the residual's noise"))
+                ),
+            }
+        }
         NotKept::LowerRms { winner, winner_um, this_um, round } => format!(
             "the {} lowered the held-out RMS further ({winner_um:.4} µm against {this_um:.4} µm) and was kept in round \
              {round}",
@@ -220,7 +224,12 @@ fn harmonic_text(kind: Kind, e: &HarmonicEvidence) -> String {
              off-centre operating point)"
         );
         if let Some(r) = e.resonance {
-            let _ = write!(t, ", amplified by the resonance near {:.0} Hz{}", r.hz, confirm(r.hz, r.needs_confirming));
+            let _ = write!(
+                t,
+                ", amplified by the resonance near {:.0} Hz{}",
+                r.hz,
+                confirm(r.hz, r.needs_confirming)
+            );
         }
         return t;
     }
@@ -305,7 +314,9 @@ fn distortion_text(e: &DistortionEvidence) -> String {
         (p, None) => term_name(p).to_string(),
     };
     let meaning = match e.parity {
-        Parity::Odd => "a symmetric stiffening of the actuator or its mechanism that the hysteresis loop does not hold",
+        Parity::Odd => {
+            "a symmetric stiffening of the actuator or its mechanism that the hysteresis loop does not hold"
+        }
         Parity::Even => {
             "an asymmetry beyond the loop's own (an asymmetric stiffness: layers or a clamp that differ, an off-centre \
              operating point)"
@@ -386,7 +397,9 @@ pub fn finding_text(f: &Finding) -> String {
             let states: Vec<String> = e
                 .relaxations
                 .iter()
-                .map(|c| format!("{:.2} s ({:.1} % of the deflection the drive asks for)", c.tau_s, 100.0 * c.gain))
+                .map(|c| {
+                    format!("{:.2} s ({:.1} % of the deflection the drive asks for)", c.tau_s, 100.0 * c.gain)
+                })
                 .collect();
             format!(
                 "creep: the output relaxes slowly after the drive, with time constants {}; the baseline's residual \

@@ -29,9 +29,14 @@ pub fn fit_json(f: &Fit, seconds: f64) -> Value {
 pub fn fit_text(f: &Fit) -> String {
     let data = match f.data {
         DataUsed::Samples { from, to } => format!("samples {from}..{to}"),
-        DataUsed::Periods { from, to, periods, .. } => format!("the average of {periods} periods of samples {from}..{to}"),
+        DataUsed::Periods { from, to, periods, .. } => {
+            format!("the average of {periods} periods of samples {from}..{to}")
+        }
     };
-    format!("fit on {data}: stopped after {} iterations ({}), {} evaluations", f.iterations, f.stop, f.evaluations)
+    format!(
+        "fit on {data}: stopped after {} iterations ({}), {} evaluations",
+        f.iterations, f.stop, f.evaluations
+    )
 }
 
 /// The JSON object of `boucwen identify --json`.

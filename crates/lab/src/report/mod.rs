@@ -11,8 +11,8 @@ use crate::diagnose::Diagnosis;
 use crate::diagnose::periodic::PeriodicDiagnosis;
 use crate::experiments::sweep::{SweepResult, Traces};
 use crate::record::{RecordError, write_atomic};
-use crate::rules::Rules;
 use crate::report::plot::{Chart, Series};
+use crate::rules::Rules;
 use crate::signal::analysis;
 use std::path::{Path, PathBuf};
 
@@ -208,7 +208,13 @@ pub fn write_diagnosis(
         ("time_series.svg", diagnosis_time_series(d, y).to_svg()),
         ("residual.svg", diagnosis_residual(d, y).to_svg()),
     ];
-    write_page(dir, source, &diagnosis::sine_text(d, source, rules), &figures, &diagnosis::sine_json(d, rules))
+    write_page(
+        dir,
+        source,
+        &diagnosis::sine_text(d, source, rules),
+        &figures,
+        &diagnosis::sine_json(d, rules),
+    )
 }
 
 /// A diagnosis page in `dir`: `index.html` (the report `summary` of `source` and the
@@ -324,7 +330,13 @@ pub fn write_periodic(
     rules: &Rules,
 ) -> Result<Vec<PathBuf>, ReportError> {
     let figures = [("lines.svg", periodic_lines(d).to_svg())];
-    write_page(dir, source, &diagnosis::periodic_text(d, source, rules), &figures, &diagnosis::periodic_json(d))
+    write_page(
+        dir,
+        source,
+        &diagnosis::periodic_text(d, source, rules),
+        &figures,
+        &diagnosis::periodic_json(d),
+    )
 }
 
 /// The output's lines (first realisation): excited, odd left out, even, and the noise of the

@@ -181,7 +181,8 @@ pub fn lines(u: &[f64], y: &[f64], period: f64, ts: f64, kmax: u32, r: &Rules) -
     let lines = (0..um.len().min(ym.len()))
         .map(|i| {
             let a = um[i].norm();
-            let excited = a >= r.periodic.excited_rel * top && a * a >= db_ratio(r.periodic.excited_snr_db) * uv[i];
+            let excited =
+                a >= r.periodic.excited_rel * top && a * a >= db_ratio(r.periodic.excited_snr_db) * uv[i];
             Line {
                 k: i as u32 + 1,
                 freq_hz: (i + 1) as f64 * f0,
@@ -193,7 +194,12 @@ pub fn lines(u: &[f64], y: &[f64], period: f64, ts: f64, kmax: u32, r: &Rules) -
             }
         })
         .collect();
-    Some(Lines { f0_hz: f0, period, periods: whole_periods_in(n, period, r.drive.period_slack_samples), lines })
+    Some(Lines {
+        f0_hz: f0,
+        period,
+        periods: whole_periods_in(n, period, r.drive.period_slack_samples),
+        lines,
+    })
 }
 
 fn db_ratio(db: f64) -> f64 {
@@ -345,13 +351,16 @@ pub fn bla(sets: &[Lines], r: &PeriodicRules) -> Vec<BlaLine> {
             })
             .sum::<f64>()
             / (n_sets * n_sets) as f64;
-        let total_var =
-            (n_sets >= 2).then(|| gs.iter().map(|x| (x - g).norm_sqr()).sum::<f64>() / ((n_sets - 1) * n_sets) as f64);
+        let total_var = (n_sets >= 2)
+            .then(|| gs.iter().map(|x| (x - g).norm_sqr()).sum::<f64>() / ((n_sets - 1) * n_sets) as f64);
         let distortion_var = match total_var {
             Some(t) => (t - noise_var).max(0.0) * n_sets as f64,
             None => {
-                let near: Vec<&Line> =
-                    first.lines.iter().filter(|x| !x.excited && x.k.abs_diff(l0.k) <= r.bla_neighbour_lines).collect();
+                let near: Vec<&Line> = first
+                    .lines
+                    .iter()
+                    .filter(|x| !x.excited && x.k.abs_diff(l0.k) <= r.bla_neighbour_lines)
+                    .collect();
                 if near.is_empty() {
                     0.0
                 } else {
@@ -414,11 +423,7 @@ mod tests {
             let top = distortion_top(&l, ts, &R);
             let lo = level(&[&non_excited(&l, Parity::Odd, top)], &R.periodic);
             let le = level(&[&non_excited(&l, Parity::Even, top)], &R.periodic);
-            assert_eq!(
-                (lo.detected, le.detected),
-                (odd, even),
-                "a2 {a2} a3 {a3}: odd {lo:?} even {le:?}"
-            );
+            assert_eq!((lo.detected, le.detected), (odd, even), "a2 {a2} a3 {a3}: odd {lo:?} even {le:?}");
             if !odd {
                 assert!(lo.db.abs() < 3.0, "{lo:?}");
             }

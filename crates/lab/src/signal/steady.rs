@@ -297,7 +297,11 @@ fn classify_near(u: &[f64], ts: f64, near_hz: Option<f64>, r: &DriveRules) -> Dr
     let f_base = 1.0 / (p as f64 * ts);
     let first_share = amps.get(1).map_or(0.0, |a| a * a / 2.0) / variance(&avg).max(1e-300);
     // Two tones or more whose common period's own line is weak: a multisine.
-    let kind = if lines.len() >= 2 && first_share < r.fundamental_share { DriveKind::Multisine } else { DriveKind::Periodic };
+    let kind = if lines.len() >= 2 && first_share < r.fundamental_share {
+        DriveKind::Multisine
+    } else {
+        DriveKind::Periodic
+    };
     let harmonics = if kind == DriveKind::Periodic {
         analysis::harmonics(&u[..periods * p], f_base, ts, (p / 2).clamp(1, r.harmonics))
     } else {
@@ -389,8 +393,7 @@ pub fn matched_period(x: &[f64], p0: f64, r: &DriveRules) -> Option<f64> {
         let shift = if curv > 0.0 { (0.5 * (a - c) / curv).clamp(-0.5, 0.5) } else { 0.0 };
         Some(k as f64 + shift)
     };
-    let p1 =
-        least(p0 * (1.0 - rel), (p0 * (1.0 + rel)).min(n as f64 - MATCH_MIN_OVERLAP * p0))?;
+    let p1 = least(p0 * (1.0 - rel), (p0 * (1.0 + rel)).min(n as f64 - MATCH_MIN_OVERLAP * p0))?;
     // The largest multiple whose overlap keeps a period and a half, searched within half a
     // sample per period of it (p1 is within half a sample): fewer multiples than the period
     // has samples, so the search never reaches the next multiple.
@@ -532,7 +535,8 @@ impl Compare {
         match self {
             Compare::Peaks => {
                 let s = a.p2p.max(b.p2p);
-                (a.p2p - b.p2p).abs() <= r.level_tolerance * s && (a.mid - b.mid).abs() <= r.level_tolerance * s
+                (a.p2p - b.p2p).abs() <= r.level_tolerance * s
+                    && (a.mid - b.mid).abs() <= r.level_tolerance * s
             }
             Compare::Spread => {
                 let s = a.std.max(b.std);
@@ -972,14 +976,24 @@ pub fn check_response(u: &[f64], y: &[f64], ts: f64, drive: &Drive, r: &Rules) -
             let h = analysis::harmonics(&y[..n], drive.freq_hz, ts, kmax);
             let share = h.iter().map(|t| t.amp * t.amp / 2.0).sum::<f64>() / variance(&y[..n]).max(1e-300);
             if share < w.min_driven_share {
-                return Err(NoResponse::Uncorrelated { share, periodic: true, least: w.min_driven_share, max_lag_s: 0.0 });
+                return Err(NoResponse::Uncorrelated {
+                    share,
+                    periodic: true,
+                    least: w.min_driven_share,
+                    max_lag_s: 0.0,
+                });
             }
         }
         DriveKind::Multisine => {
             let p = drive.period_samples.unwrap_or(1.0).round().max(1.0) as usize;
             let share = averaged_period_share(y, p);
             if share < w.min_driven_share {
-                return Err(NoResponse::Uncorrelated { share, periodic: true, least: w.min_driven_share, max_lag_s: 0.0 });
+                return Err(NoResponse::Uncorrelated {
+                    share,
+                    periodic: true,
+                    least: w.min_driven_share,
+                    max_lag_s: 0.0,
+                });
             }
         }
         DriveKind::Aperiodic => {
@@ -1218,8 +1232,7 @@ pub fn sine_segments(u: &[f64], ts: f64, r: &Rules) -> Vec<SineSegment> {
             };
             let mut e = k + 1;
             while let Some(Some((f2, a2))) = blocks.get(e) {
-                if (f2 - f).abs() > d.segment_freq_tolerance * f || (a2 - a).abs() > tol * a.max(*a2)
-                {
+                if (f2 - f).abs() > d.segment_freq_tolerance * f || (a2 - a).abs() > tol * a.max(*a2) {
                     break;
                 }
                 e += 1;
@@ -1330,7 +1343,12 @@ mod tests {
         assert_eq!(classify(&noise, ts, &R).kind, DriveKind::Aperiodic);
         let chirp: Vec<f64> =
             (0..8000).map(|k| (TAU * (1.0 + 5.0 * k as f64 * ts) * k as f64 * ts).sin()).collect();
-        assert_eq!(classify(&chirp, ts, &R).kind, DriveKind::Aperiodic, "{}", classify(&chirp, ts, &R).describe());
+        assert_eq!(
+            classify(&chirp, ts, &R).kind,
+            DriveKind::Aperiodic,
+            "{}",
+            classify(&chirp, ts, &R).describe()
+        );
         assert_eq!(classify(&vec![0.3; 1000], ts, &R).kind, DriveKind::None);
     }
 

@@ -82,7 +82,8 @@ impl Data {
 
     /// RMS of the output over the held-out parts, its mean removed (µm).
     pub fn output_rms(&self) -> f64 {
-        let ys: Vec<f64> = self.held.iter().flat_map(|&(i, a, b)| self.sets[i].y[a..b].iter().copied()).collect();
+        let ys: Vec<f64> =
+            self.held.iter().flat_map(|&(i, a, b)| self.sets[i].y[a..b].iter().copied()).collect();
         let m = crate::signal::analysis::mean(&ys);
         (ys.iter().map(|v| (v - m) * (v - m)).sum::<f64>() / ys.len().max(1) as f64).sqrt()
     }
@@ -98,7 +99,11 @@ impl Data {
 
 /// Each record's steady window and drive, checked to be a periodic or multisine drive the
 /// output responds to.
-fn windows(records: &[Realisation<'_>], ts: f64, r: &Rules) -> Result<Vec<(Window, f64, Drive)>, DiagnoseError> {
+fn windows(
+    records: &[Realisation<'_>],
+    ts: f64,
+    r: &Rules,
+) -> Result<Vec<(Window, f64, Drive)>, DiagnoseError> {
     let mut out = vec![];
     for rec in records {
         let n = rec.u.len().min(rec.y.len());
@@ -119,7 +124,8 @@ fn windows(records: &[Realisation<'_>], ts: f64, r: &Rules) -> Result<Vec<(Windo
 /// enough whole periods each, the same excited lines.
 pub fn prepare(records: &[Realisation<'_>], ts: f64, r: &Rules) -> Result<Data, DiagnoseError> {
     let found = windows(records, ts, r)?;
-    let drive = found.first().map(|f| f.2.clone()).ok_or(DiagnoseError::Realisations("no record given".into()))?;
+    let drive =
+        found.first().map(|f| f.2.clone()).ok_or(DiagnoseError::Realisations("no record given".into()))?;
     let period = drive.period_samples.unwrap_or(0.0);
     for (i, (_, _, d)) in found.iter().enumerate().skip(1) {
         let p = d.period_samples.unwrap_or(0.0);
@@ -194,7 +200,9 @@ fn lines_of(
     }
     let held_out = if sets.len() >= 2 { HeldOut::Realisations } else { HeldOut::Periods };
     let (fit_end, held) = match held_out {
-        HeldOut::Realisations => (sets[0].end, (1..sets.len()).map(|i| (i, sets[i].start, sets[i].end)).collect()),
+        HeldOut::Realisations => {
+            (sets[0].end, (1..sets.len()).map(|i| (i, sets[i].start, sets[i].end)).collect())
+        }
         HeldOut::Periods => {
             let s = &sets[0];
             let split = s.start + (periods[0].div_ceil(2) as f64 * period).round() as usize;

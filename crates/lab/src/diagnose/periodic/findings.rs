@@ -16,7 +16,14 @@ use crate::signal::distortion::{self, Level, Line, Parity};
 use crate::signal::steady::DriveKind;
 
 /// The findings of the kept terms, then of what no term removed.
-pub fn findings(data: &Data, baseline: &ModelStep, kept: &Kept, out_rms: f64, ts: f64, r: &Rules) -> Vec<Finding> {
+pub fn findings(
+    data: &Data,
+    baseline: &ModelStep,
+    kept: &Kept,
+    out_rms: f64,
+    ts: f64,
+    r: &Rules,
+) -> Vec<Finding> {
     let mut found: Vec<Finding> = kept_findings(data, baseline, kept, ts, r);
     let n_kept = found.len();
     let last = kept.steps.last().unwrap_or(baseline);
@@ -49,7 +56,8 @@ pub fn findings(data: &Data, baseline: &ModelStep, kept: &Kept, out_rms: f64, ts
         }
     }
     let parity = |f: &Finding| if f.kind == Kind::OddDistortion { Parity::Odd } else { Parity::Even };
-    found[n_kept..].sort_by(|a, b| evidence(data, baseline, parity(b)).total_cmp(&evidence(data, baseline, parity(a))));
+    found[n_kept..]
+        .sort_by(|a, b| evidence(data, baseline, parity(b)).total_cmp(&evidence(data, baseline, parity(a))));
     found
 }
 
@@ -86,7 +94,12 @@ fn kept_findings(data: &Data, baseline: &ModelStep, kept: &Kept, ts: f64, r: &Ru
             baseline: (baseline.label.clone(), level_of(baseline, p)),
             step: Step { before_um: before.rms_um, after_um: after.rms_um, first: n == 0 },
             after: level_of(after, p),
-            stiffening: after.model.terms.stiffening.last().map(|s| (s.power, s.coeff, after.model.terms.q_ref_um)),
+            stiffening: after
+                .model
+                .terms
+                .stiffening
+                .last()
+                .map(|s| (s.power, s.coeff, after.model.terms.q_ref_um)),
         };
         let band = e.level().band_hz;
         let trial = kept.trials.iter().find(|t| t.kept && t.parity == p);

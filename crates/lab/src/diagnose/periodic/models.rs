@@ -24,7 +24,8 @@ use crate::signal::distortion::{self, Level, Line, Parity};
 /// resonance cannot absorb over a band).
 pub fn options(data: &Data, ts: f64, r: &Rules) -> OeOptions {
     let s0 = &data.sets[0];
-    let skip = s0.start.max(OeOptions::default().skip.min(data.fit_end.saturating_sub(r.sine.fit_min_samples)));
+    let skip =
+        s0.start.max(OeOptions::default().skip.min(data.fit_end.saturating_sub(r.sine.fit_min_samples)));
     let window = ((r.periodic.max_fit_s / ts) as usize).max((2.0 * data.period).round() as usize);
     OeOptions {
         lm_starts: r.terms.term_starts,
@@ -37,7 +38,13 @@ pub fn options(data: &Data, ts: f64, r: &Rules) -> OeOptions {
 }
 
 /// A model's held-out residual: RMS, check, levels at the lines of each parity.
-pub fn evaluate(label: &str, m: TermModel, data: &Data, ts: f64, r: &Rules) -> Result<ModelStep, DiagnoseError> {
+pub fn evaluate(
+    label: &str,
+    m: TermModel,
+    data: &Data,
+    ts: f64,
+    r: &Rules,
+) -> Result<ModelStep, DiagnoseError> {
     let (mut all_r, mut all_y, mut sims, mut res_lines) = (vec![], vec![], vec![], vec![]);
     for &(i, a, b) in &data.held {
         let s = &data.sets[i];

@@ -79,7 +79,8 @@ fn output_amplitude(cx: &Context<'_>) -> f64 {
 /// (a loop that ratchets to follow a drift of the output is the drift's business).
 fn ratchet_check(cx: &Context<'_>, sim: &[f64]) -> Result<(), DiagnoseError> {
     let (s, period) = (cx.split(), cx.plan.drive.period_samples);
-    let (Some(moves), Some(y_moves)) = (checks::ratchet_um(&sim[s..], period), checks::ratchet_um(&cx.y[s..], period))
+    let (Some(moves), Some(y_moves)) =
+        (checks::ratchet_um(&sim[s..], period), checks::ratchet_um(&cx.y[s..], period))
     else {
         return Ok(());
     };
@@ -107,7 +108,10 @@ fn sample_fit_check(cx: &Context<'_>, baseline: &HostModel, base_sim: &[f64]) ->
     if let (true, Some(moves)) = (better, checks::ratchet_um(&sim[s..], period)) {
         let y_moves = checks::ratchet_um(&cx.y[s..], period).unwrap_or(0.0);
         if checks::ratchets(moves, y_moves, output_amplitude(cx), &cx.rules.checks) {
-            return Err(DiagnoseError::Ratchets { moved_um: moves.abs(), thd_pct: 100.0 * cx.plan.drive.thd });
+            return Err(DiagnoseError::Ratchets {
+                moved_um: moves.abs(),
+                thd_pct: 100.0 * cx.plan.drive.thd,
+            });
         }
     }
     Ok(())
@@ -130,7 +134,7 @@ pub fn facts(cx: &Context<'_>, base: &Baseline) -> Facts {
 pub fn other_input(cx: &Context<'_>, base: &Baseline, facts: &Facts) -> Option<Finding> {
     let fit = base.check.fit_pct.unwrap_or(f64::NAN);
     let min_fit_pct = cx.rules.checks.min_fit_pct;
-    (fit.is_nan() || fit < min_fit_pct).then(|| Finding {
+    (fit.is_nan() || fit < min_fit_pct).then_some(Finding {
         kind: Kind::OtherInput,
         order: None,
         freq_hz: 0.0,

@@ -70,8 +70,10 @@ pub fn read(cx: &Context<'_>, base: &Baseline, facts: &Facts) -> Result<Read, Di
         .enumerate()
         .map(|(i, t)| match drive_part.get(i) {
             Some(d) if i > 0 => {
-                let (a, b) =
-                    (t.amp * t.phase.cos() - d.amp * d.phase.cos(), t.amp * t.phase.sin() - d.amp * d.phase.sin());
+                let (a, b) = (
+                    t.amp * t.phase.cos() - d.amp * d.phase.cos(),
+                    t.amp * t.phase.sin() - d.amp * d.phase.sin(),
+                );
                 Tone { freq_hz: t.freq_hz, amp: (a * a + b * b).sqrt(), phase: b.atan2(a) }
             }
             _ => *t,

@@ -34,22 +34,32 @@ fn holds_step(cx: &Context<'_>, read: &Read) -> bool {
     let (p, w) = (cx.plan, &cx.plan.window);
     p.from_rest
         && w.start > w.drive_on
-        && (w.drive_on > 0 || cx.u.first().is_some_and(|u0| u0.abs() <= cx.rules.sine.step_from_rest * read.drive_amp_v))
+        && (w.drive_on > 0
+            || cx.u.first().is_some_and(|u0| u0.abs() <= cx.rules.sine.step_from_rest * read.drive_amp_v))
 }
 
 /// The delay stage on the selected model.
-pub fn stage(cx: &Context<'_>, read: &Read, model: TermModel, model_rms: f64) -> Result<Delayed, DiagnoseError> {
+pub fn stage(
+    cx: &Context<'_>,
+    read: &Read,
+    model: TermModel,
+    model_rms: f64,
+) -> Result<Delayed, DiagnoseError> {
     let mut out = Delayed { model, model_rms, estimate: None, finding: None };
     if !holds_step(cx, read) {
         return Ok(out);
     }
     let (u, y, ts, split, opt) = (cx.u, cx.y, cx.ts, cx.split(), cx.opt());
-    let Some(scan) = causes::delay_scan(&out.model, &causes::spec_of(&out.model.host), u, y, ts, split, opt, cx.rules)
+    let Some(scan) =
+        causes::delay_scan(&out.model, &causes::spec_of(&out.model.host), u, y, ts, split, opt, cx.rules)
     else {
         return Ok(out);
     };
-    out.estimate =
-        Some(DelayEstimate { samples: scan.samples, rms_without_um: scan.rms_without_um, rms_with_um: scan.rms_with_um });
+    out.estimate = Some(DelayEstimate {
+        samples: scan.samples,
+        rms_without_um: scan.rms_without_um,
+        rms_with_um: scan.rms_with_um,
+    });
     let gain = 1.0 - scan.rms_with_um / scan.rms_without_um.max(1e-300);
     let c = &cx.rules.causes;
     if scan.samples < c.min_delay_samples || gain < cx.rules.terms.min_gain {
@@ -60,11 +70,12 @@ pub fn stage(cx: &Context<'_>, read: &Read, model: TermModel, model_rms: f64) ->
     let mut dm = out.model.clone();
     dm.terms.extra_delay = scan.model.terms.extra_delay;
     dm.host.delay = scan.model.host.delay;
-    let with = causes::fit_host(&dm, &causes::spec_of(&dm.host), u, y, ts, split, opt).ok().and_then(|(m, _)| {
-        let sim = m.simulate(u, ts).ok()?;
-        let r = analysis::rms_diff(&sim[split..], &y[split..]);
-        (checks::instability(&m.host.ext.ar, &sim, ts).is_none() && r.is_finite()).then_some((m, r))
-    });
+    let with =
+        causes::fit_host(&dm, &causes::spec_of(&dm.host), u, y, ts, split, opt).ok().and_then(|(m, _)| {
+            let sim = m.simulate(u, ts).ok()?;
+            let r = analysis::rms_diff(&sim[split..], &y[split..]);
+            (checks::instability(&m.host.ext.ar, &sim, ts).is_none() && r.is_finite()).then_some((m, r))
+        });
     let before = out.model_rms;
     let kept = with.as_ref().is_some_and(|(_, r)| *r <= before * c.delay_held_out_slack);
     if let (true, Some((m, r))) = (kept, with) {

@@ -15,8 +15,9 @@ use crate::diagnose::causes;
 use crate::diagnose::checks::ModelCheck;
 use crate::diagnose::error::DiagnoseError;
 use crate::diagnose::evidence::{
-    Candidate, CreepEvidence, DriveHarmonic, DriveSaturationEvidence, Evidence, Finding, HarmonicEvidence, Kind,
-    NearResonance, OutputSaturationEvidence, Resonance, ResidualReading, Step, TrendEvidence, WithinRange,
+    Candidate, CreepEvidence, DriveHarmonic, DriveSaturationEvidence, Evidence, Finding, HarmonicEvidence,
+    Kind, NearResonance, OutputSaturationEvidence, ResidualReading, Resonance, Step, TrendEvidence,
+    WithinRange,
 };
 use crate::diagnose::residual::{self, Residual};
 use crate::model::terms::{TermModel, Terms};
@@ -83,7 +84,8 @@ pub fn assemble(
     findings.extend(unexplained(cx, &model_residual, &selected.kept, &facts));
     let r = &cx.rules.checks;
     let mut model_check = ModelCheck::of(&model.host.ext.ar, &model_sim[split..], &cx.y[split..], ts, r);
-    model_check.check_amplitudes(&model.host.ext.bw, &model.host.ext.ar, u, ts, r, |v| model.simulate(v, ts).ok());
+    model_check
+        .check_amplitudes(&model.host.ext.bw, &model.host.ext.ar, u, ts, r, |v| model.simulate(v, ts).ok());
     let resonance = resonance_support(cx, &facts);
     let mut d = skeleton(cx, base, facts);
     d.resonance = resonance;
@@ -202,14 +204,22 @@ fn harmonic(
 /// A saturation's evidence: a clamped output (its plateaus, and the drive that keeps the
 /// output inside the range) or a clamped drive (its levels and the series of odd harmonics
 /// it puts in the output).
-fn saturation(cx: &Context<'_>, facts: &Facts, read: &Read, c: &Candidate, model: &TermModel, step: Step) -> Evidence {
+fn saturation(
+    cx: &Context<'_>,
+    facts: &Facts,
+    read: &Read,
+    c: &Candidate,
+    model: &TermModel,
+    step: Step,
+) -> Evidence {
     let out = &facts.out_harmonics;
     match (c.output_range, model.terms.input_clamp) {
         (Some([lo, hi]), _) => {
             let steady = &cx.y[read.steady_from..];
             let share = causes::plateaus(steady, facts.noise_um.0, &cx.rules.causes).map_or(0.0, |p| p.share);
-            let within = causes::drive_within_range(model, cx.u, cx.ts, cx.plan.window.start, &cx.rules.causes)
-                .map(|k| WithinRange { scale: k, amplitude_v: k * read.drive_amp_v });
+            let within =
+                causes::drive_within_range(model, cx.u, cx.ts, cx.plan.window.start, &cx.rules.causes)
+                    .map(|k| WithinRange { scale: k, amplitude_v: k * read.drive_amp_v });
             Evidence::OutputSaturation(OutputSaturationEvidence {
                 top_um: (hi.abs() < Y_LIMIT_UM).then_some(hi),
                 bottom_um: (lo.abs() < Y_LIMIT_UM).then_some(lo),
@@ -305,11 +315,17 @@ fn resonance_support(cx: &Context<'_>, facts: &Facts) -> Resonance {
     let residual = &facts.residual;
     let power = (residual.rms_um * residual.rms_um).max(1e-300);
     let share = cx.rules.terms.unexplained_share;
-    if let Some(t) = residual.harmonics.iter().find(|t| near(t.freq_hz) && t.amp * t.amp / 2.0 >= share * power) {
+    if let Some(t) =
+        residual.harmonics.iter().find(|t| near(t.freq_hz) && t.amp * t.amp / 2.0 >= share * power)
+    {
         return Resonance::InResidual { freq_hz: t.freq_hz };
     }
     let drive_hz = cx.plan.drive.freq_hz;
-    let top_hz =
-        out.iter().enumerate().filter(|(k, t)| excited(*k, t)).map(|(_, t)| t.freq_hz).fold(drive_hz, f64::max);
+    let top_hz = out
+        .iter()
+        .enumerate()
+        .filter(|(k, t)| excited(*k, t))
+        .map(|(_, t)| t.freq_hz)
+        .fold(drive_hz, f64::max);
     Resonance::NotIdentifiable { fitted_hz: r, drive_hz, top_hz }
 }

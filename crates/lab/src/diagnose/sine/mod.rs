@@ -140,7 +140,11 @@ impl Diagnosis {
 
     /// `100·(1 − after/before)`.
     pub fn gain_pct(&self) -> f64 {
-        if self.baseline_rms_um > 0.0 { 100.0 * (1.0 - self.model_rms_um / self.baseline_rms_um) } else { 0.0 }
+        if self.baseline_rms_um > 0.0 {
+            100.0 * (1.0 - self.model_rms_um / self.baseline_rms_um)
+        } else {
+            0.0
+        }
     }
 
     /// The resonance of the baseline's structure the record supports (Hz).
@@ -230,7 +234,13 @@ impl<'a> Context<'a> {
 }
 
 /// Diagnoses a record as planned.
-pub fn diagnose_planned(u: &[f64], y: &[f64], ts: f64, plan: &Plan, r: &Rules) -> Result<Diagnosis, DiagnoseError> {
+pub fn diagnose_planned(
+    u: &[f64],
+    y: &[f64],
+    ts: f64,
+    plan: &Plan,
+    r: &Rules,
+) -> Result<Diagnosis, DiagnoseError> {
     let w = &plan.window;
     run(&Context::new(&u[w.drive_on..w.end], &y[w.drive_on..w.end], ts, plan, r), &[], 0)
 }
@@ -246,7 +256,7 @@ fn run(cx: &Context<'_>, starts: &[HostModel], depth: usize) -> Result<Diagnosis
     let record = candidates::read(cx, &base, &facts)?;
     let selected = match selection::select(cx, &base, &facts, &record, depth)? {
         selection::Outcome::Restart(b) => return run(cx, &[b], depth + 1),
-        selection::Outcome::Done(s) => s,
+        selection::Outcome::Done(s) => *s,
     };
     let delayed = delay::stage(cx, &record, selected.model.clone(), selected.model_rms)?;
     findings::assemble(cx, base, facts, &record, selected, delayed)

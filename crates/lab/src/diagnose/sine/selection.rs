@@ -41,7 +41,7 @@ pub enum Outcome {
     /// `sine.baseline_refit_gain`: the diagnosis restarts from it.
     Restart(HostModel),
     /// The terms kept.
-    Done(Selected),
+    Done(Box<Selected>),
 }
 
 /// One term tried: its index in the remaining candidates, the refitted model, its held-out
@@ -103,7 +103,7 @@ pub fn select(
         // the 3rd harmonic's branch by 31 %, a saturation the actuator does not have).
         remaining.retain(|c| !(c.kind == Kind::Saturation && c.output_range.is_none()));
     }
-    Ok(Outcome::Done(s))
+    Ok(Outcome::Done(Box::new(s)))
 }
 
 /// Every remaining term added to `model` and refitted, in parallel; the stable ones.
@@ -151,7 +151,9 @@ fn winner(
 ) -> Option<usize> {
     let qualifies = |t: &Tried| {
         let c = &remaining[t.0];
-        gains(cx, t, model_rms) && t.3 >= read.min_term(cx, facts, c) && read.drive_share(cx, facts, c).is_none()
+        gains(cx, t, model_rms)
+            && t.3 >= read.min_term(cx, facts, c)
+            && read.drive_share(cx, facts, c).is_none()
     };
     let by_evidence = tried
         .iter()
@@ -164,7 +166,9 @@ fn winner(
         .iter()
         .enumerate()
         .filter(|(_, t)| qualifies(t) && remaining[t.0].physical())
-        .min_by(|a, b| plateau(&remaining[b.1.0]).cmp(&plateau(&remaining[a.1.0])).then(a.1.2.total_cmp(&b.1.2)))
+        .min_by(|a, b| {
+            plateau(&remaining[b.1.0]).cmp(&plateau(&remaining[a.1.0])).then(a.1.2.total_cmp(&b.1.2))
+        })
         .map(|(pos, _)| pos);
     match (by_evidence, by_rms) {
         (Some(e), Some(r)) if tried[r].2 < tried[e].2 => Some(r),
@@ -206,7 +210,8 @@ fn reasons(
                 carried_um: t.3,
                 need_um: need,
                 min_term_rel: cx.rules.terms.min_term_rel,
-                noise_factor: matches!(c.kind, Kind::Drift | Kind::Creep).then_some(cx.rules.sine.drift_noise_factor),
+                noise_factor: matches!(c.kind, Kind::Drift | Kind::Creep)
+                    .then_some(cx.rules.sine.drift_noise_factor),
                 removed: None,
             }
         } else if let Some(w) = winner {
@@ -253,13 +258,20 @@ fn better_baseline(cx: &Context<'_>, base: &Baseline, m: &TermModel, c: &Candida
 /// current model with the new term at zero can stay where the current model's loop already
 /// imitates the term; the candidate's own fit of the last round with the kept term added is
 /// then a second start, and the start that ends with the lower fitting error is taken.
-fn try_term(cx: &Context<'_>, model: &TermModel, c: &Candidate, prev: Option<&TermModel>) -> Option<TermModel> {
+fn try_term(
+    cx: &Context<'_>,
+    model: &TermModel,
+    c: &Candidate,
+    prev: Option<&TermModel>,
+) -> Option<TermModel> {
     let (u, y, ts, split, opt) = (cx.u, cx.y, cx.ts, cx.split(), cx.opt());
     let terms = &cx.rules.terms;
     match c.kind {
         Kind::Saturation => match c.output_range {
             Some(range) => causes::fit_output_clamp(model, range, u, y, ts, split, opt, cx.rules),
-            None => causes::fit_input_clamp(model, &causes::spec_of(&model.host), u, y, ts, split, opt, cx.rules),
+            None => {
+                causes::fit_input_clamp(model, &causes::spec_of(&model.host), u, y, ts, split, opt, cx.rules)
+            }
         },
         Kind::Creep => causes::fit_creep(model, u, y, ts, split, opt, cx.rules),
         Kind::OddHarmonic | Kind::EvenHarmonic | Kind::Drift => {
@@ -291,7 +303,13 @@ fn try_term(cx: &Context<'_>, model: &TermModel, c: &Candidate, prev: Option<&Te
 
 /// The held-out RMS (µm) of what the term of `c` carries in `model`: the change of its free
 /// run when the term is removed.
-pub fn term_rms(model: &TermModel, c: &Candidate, u: &[f64], ts: f64, split: usize) -> Result<f64, DiagnoseError> {
+pub fn term_rms(
+    model: &TermModel,
+    c: &Candidate,
+    u: &[f64],
+    ts: f64,
+    split: usize,
+) -> Result<f64, DiagnoseError> {
     let a = model.simulate(u, ts)?;
     let b = without(model, c).simulate(u, ts)?;
     let d: Vec<f64> = a.iter().zip(&b).map(|(x, y)| x - y).collect();

@@ -136,7 +136,11 @@ fn header(s: &mut String, d: &PeriodicDiagnosis, source: &str) {
         "output {:.3} µm RMS, noise floor {:.4} µm ({})",
         d.output_rms_um,
         d.noise_um,
-        if d.noise_method == "quantisation" { "the sensor's resolution: its steps' RMS error" } else { "from period to period" }
+        if d.noise_method == "quantisation" {
+            "the sensor's resolution: its steps' RMS error"
+        } else {
+            "from period to period"
+        }
     );
 }
 
@@ -186,7 +190,10 @@ fn data_lines(s: &mut String, d: &PeriodicDiagnosis) {
 
 /// The models, what each leaves at the lines, and what the hysteresis accounts for.
 fn models_lines(s: &mut String, d: &PeriodicDiagnosis) {
-    let _ = writeln!(s, "\nmodels (held-out RMS; held-out residual at the odd and even lines, dB above the noise):");
+    let _ = writeln!(
+        s,
+        "\nmodels (held-out RMS; held-out residual at the odd and even lines, dB above the noise):"
+    );
     for st in d.steps() {
         let label = format!("{} ({})", st.label, st.model.name());
         let _ = if st.usable() {
@@ -226,7 +233,10 @@ fn models_lines(s: &mut String, d: &PeriodicDiagnosis) {
             lin.even.db,
             ext.even.db
         ),
-        _ => writeln!(s, "not every one of these models runs stably on the held-out data: they are not compared"),
+        _ => writeln!(
+            s,
+            "not every one of these models runs stably on the held-out data: they are not compared"
+        ),
     };
 }
 

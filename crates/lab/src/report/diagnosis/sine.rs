@@ -1,7 +1,8 @@
 //! A sine diagnosis as text and JSON.
 
 use super::{
-    check_text, finding_json, finding_text, instability_text, narrow_text, not_kept_text, ordinal, resonance_text, trial_line,
+    check_text, finding_json, finding_text, instability_text, narrow_text, not_kept_text, ordinal,
+    resonance_text, trial_line,
 };
 use crate::diagnose::Diagnosis;
 use crate::diagnose::checks::ModelCheck;
@@ -260,7 +261,9 @@ fn findings_lines(s: &mut String, d: &Diagnosis, rules: &Rules) {
             ),
             (
                 top.map_or(0.0, |(_, h)| h.amp / std::f64::consts::SQRT_2),
-                top.map_or(String::new(), |(i, h)| format!("its {} harmonic at {:.1} Hz", ordinal(i as u32 + 1), h.freq_hz)),
+                top.map_or(String::new(), |(i, h)| {
+                    format!("its {} harmonic at {:.1} Hz", ordinal(i as u32 + 1), h.freq_hz)
+                }),
             ),
             (r.trend_rms_um, "a slow trend".to_string()),
             (r.noise_rms_um, "what does not repeat with the drive".to_string()),

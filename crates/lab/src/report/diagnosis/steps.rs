@@ -52,5 +52,9 @@ pub fn steps_sentence(steps: &[SineStep], ts: f64, t0: f64) -> String {
             )
         })
         .collect();
-    format!("the drive steps through {} sines: {}; each is diagnosed on its own", steps.len(), list.join(", "))
+    format!(
+        "the drive steps through {} sines: {}; each is diagnosed on its own",
+        steps.len(),
+        list.join(", ")
+    )
 }
