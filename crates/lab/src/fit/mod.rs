@@ -59,6 +59,7 @@
 //! ([`Averaging::PeriodsAndTrend`]) and models it by a term of its own.
 
 mod error;
+pub mod family;
 pub mod linear;
 mod lm;
 mod options;
