@@ -19,7 +19,9 @@ use super::{FitError, Tolerances};
 use crate::model::family::UM_PER_M;
 use crate::model::linear::OeOrders;
 use crate::model::oscillator::{InputReconstruction, OutputSampling};
-use crate::model::{Family, Model};
+use crate::model::oscillator::OscillatorModel;
+use crate::model::{Family, Model, ModelError};
+use std::ops::Range;
 use crate::rules::FamilyRules;
 use crate::signal::analysis::rms_diff;
 
@@ -39,6 +41,50 @@ pub struct FamilyFit {
 /// The oscillator's substeps per sample at interval `ts` (module docs).
 pub fn substeps(ts: f64, rules: &FamilyRules) -> usize {
     ((ts / rules.oscillator_step_s).ceil() as usize).clamp(2, rules.max_substeps.max(2))
+}
+
+/// How the oscillator reads a drive: DFT interpolation for a periodic drive of `period`
+/// whole samples, else a cubic spline.
+fn reconstruction(period: Option<usize>, n: usize) -> InputReconstruction {
+    match period {
+        Some(p) if p >= 2 && p <= n => InputReconstruction::Periodic { period: p },
+        _ => InputReconstruction::CubicSpline,
+    }
+}
+
+/// Fits the oscillator (module docs) to `u`, `y` (µm) on the samples `scored`.
+pub fn fit_oscillator_on(
+    u: &[f64],
+    y: &[f64],
+    ts: f64,
+    scored: Range<usize>,
+    period: Option<usize>,
+    rules: &FamilyRules,
+) -> Result<OscillatorModel, FitError> {
+    let n = u.len().min(y.len());
+    let y_m: Vec<f64> = y[..n].iter().map(|v| v / UM_PER_M).collect();
+    let opt = OscillatorOptions {
+        substeps: substeps(ts, rules),
+        output: OutputSampling::Instant,
+        input: reconstruction(period, n),
+        fit_nu: false,
+        scored: vec![scored],
+        coarse_substeps: None,
+        tolerances: OscillatorOptions::benchmark(2).tolerances,
+    };
+    Ok(fit_oscillator(&u[..n], &y_m, ts, &opt)?.model)
+}
+
+/// A model's free run (µm) on `u`, the oscillator reading a periodic drive as fitted
+/// ([`fit_oscillator_on`]).
+pub fn simulate(model: &Model, u: &[f64], ts: f64, period: Option<usize>) -> Result<Vec<f64>, ModelError> {
+    match model {
+        Model::Oscillator(o) => {
+            let y = o.simulate_with(u, ts, reconstruction(period, u.len()))?;
+            Ok(y.into_iter().map(|v| v * UM_PER_M).collect())
+        }
+        m => m.simulate(u, ts),
+    }
 }
 
 /// Fits `family` (not the actuator, whose fit is [`super::fit_oe`]) to `u`, `y` (µm) at
@@ -69,36 +115,9 @@ pub fn fit_family(
             let orders = sel.scores[sel.chosen].orders;
             Model::Linear(fit_linear_oe(u, y, orders, start..split, &tol)?.model)
         }
-        Family::Oscillator => {
-            let y_m: Vec<f64> = y[..n].iter().map(|v| v / UM_PER_M).collect();
-            let input = match period {
-                Some(p) if p >= 2 && p <= n => InputReconstruction::Periodic { period: p },
-                _ => InputReconstruction::CubicSpline,
-            };
-            let opt = OscillatorOptions {
-                substeps: substeps(ts, rules),
-                output: OutputSampling::Instant,
-                input,
-                fit_nu: false,
-                scored: vec![start..split],
-                coarse_substeps: None,
-                tolerances: OscillatorOptions::benchmark(2).tolerances,
-            };
-            Model::Oscillator(fit_oscillator(&u[..n], &y_m, ts, &opt)?.model)
-        }
+        Family::Oscillator => Model::Oscillator(fit_oscillator_on(&u[..n], &y[..n], ts, start..split, period, rules)?),
     };
-    let sim = match &model {
-        // The oscillator runs on the input as it was fitted (a periodic drive's DFT
-        // interpolation); the other families have no choice to make.
-        Model::Oscillator(o) => {
-            let input = match period {
-                Some(p) if p >= 2 && p <= n => InputReconstruction::Periodic { period: p },
-                _ => InputReconstruction::CubicSpline,
-            };
-            o.simulate_with(&u[..n], ts, input).map(|v| v.into_iter().map(|x| x * UM_PER_M).collect())
-        }
-        m => m.simulate(&u[..n], ts),
-    };
+    let sim = simulate(&model, &u[..n], ts, period);
     let (fit_rms_um, held_rms_um) = match sim {
         Ok(s) if s.iter().all(|v| v.is_finite()) => {
             (rms_diff(&s[start..split], &y[start..split]), Some(rms_diff(&s[split..n], &y[split..n])))
