@@ -209,6 +209,10 @@ pub struct PlacementEvidence {
     pub restoring_um: f64,
     /// The least gain the rules ask of another family (`families.min_gain`).
     pub min_gain: f64,
+    /// The output's noise floor held out (µm).
+    pub noise_um: f64,
+    /// The most the oscillator may leave, in multiples of the noise (`families.max_noise_ratio`).
+    pub max_noise_ratio: f64,
     /// The oscillator's parameters (SI, metres).
     pub params: crate::model::oscillator::OscillatorParams,
     /// Its integration substeps per sample.
@@ -219,6 +223,16 @@ impl PlacementEvidence {
     /// `1 − restoring/at_drive`.
     pub fn gain(&self) -> f64 {
         1.0 - self.restoring_um / self.at_drive_um.max(1e-300)
+    }
+
+    /// What the oscillator leaves, in multiples of the noise floor.
+    pub fn noise_ratio(&self) -> f64 {
+        self.restoring_um / self.noise_um.max(1e-300)
+    }
+
+    /// Whether the rules name the restoring force: the gain and the noise both met.
+    pub fn meets_rules(&self) -> bool {
+        self.gain() >= self.min_gain && self.noise_ratio() <= self.max_noise_ratio
     }
 }
 

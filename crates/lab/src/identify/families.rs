@@ -2,9 +2,10 @@
 //! paper's model ([`super::prepare`]) and, for `auto`, the one kept held out.
 //!
 //! **Rule** (`auto`): the paper's actuator (the extended model, hysteresis at the drive) is
-//! kept unless another family's held-out RMS is lower by at least
-//! [`FamilyRules::min_gain`](crate::rules::FamilyRules::min_gain); of those that are, the
-//! lowest held out. A family whose fit fails or whose free run diverges is reported with
+//! kept unless the best other family held out has an RMS lower by at least
+//! [`FamilyRules::min_gain`](crate::rules::FamilyRules::min_gain) and at most
+//! [`FamilyRules::max_noise_ratio`](crate::rules::FamilyRules::max_noise_ratio) times the
+//! output's noise floor held out (it explains the record, not only more of it). A family whose fit fails or whose free run diverges is reported with
 //! why and not chosen.
 
 use super::{IdentifyError, Options, Structure, identify, prepare};
@@ -12,6 +13,7 @@ use crate::fit::family::fit_family;
 use crate::model::{Family, Model, TermModel};
 use crate::record::Record;
 use crate::rules::Rules;
+use crate::signal::steady;
 
 /// One family's result on the split.
 #[derive(Clone, Debug)]
@@ -37,11 +39,15 @@ pub enum Choice {
     PaperModel {
         /// The best other family's gain over it held out (fraction; negative when worse).
         best_other_gain: Option<f64>,
+        /// The best other family's held-out RMS in multiples of the noise floor.
+        noise_ratio: Option<f64>,
     },
-    /// Another family, better held out by `gain` (fraction).
+    /// Another family, better held out by `gain` (fraction) and at the noise.
     Better {
         /// Its gain over the paper's actuator.
         gain: f64,
+        /// Its held-out RMS in multiples of the noise floor.
+        noise_ratio: f64,
     },
     /// The paper's actuator could not be fitted; the best of the others.
     OnlyOther,
@@ -60,6 +66,8 @@ pub struct Compared {
     pub window_s: [f64; 2],
     /// Samples fitted and held out.
     pub samples: (usize, usize),
+    /// The output's noise floor held out (µm).
+    pub noise_um: f64,
 }
 
 impl Compared {
@@ -103,6 +111,7 @@ pub fn compare(
     let p = prepare(r, given, o.fit_fraction, rules)?;
     let (u, y) = p.signals(r);
     let period = p.drive.period_samples.filter(|q| (q - q.round()).abs() < 1e-6).map(|q| q.round() as usize);
+    let noise_um = steady::noise_floor(&y[p.split..], r.ts, &p.drive, rules).0;
     let mut scores = Vec::new();
     for &family in families {
         let s = match family {
@@ -132,13 +141,14 @@ pub fn compare(
         match (paper, others) {
             (Some((pi, ph)), Some((oi, oh))) => {
                 let gain = 1.0 - oh / ph;
-                if gain >= rules.families.min_gain {
-                    (oi, Choice::Better { gain })
+                let noise_ratio = oh / noise_um.max(1e-300);
+                if gain >= rules.families.min_gain && noise_ratio <= rules.families.max_noise_ratio {
+                    (oi, Choice::Better { gain, noise_ratio })
                 } else {
-                    (pi, Choice::PaperModel { best_other_gain: Some(gain) })
+                    (pi, Choice::PaperModel { best_other_gain: Some(gain), noise_ratio: Some(noise_ratio) })
                 }
             }
-            (Some((pi, _)), None) => (pi, Choice::PaperModel { best_other_gain: None }),
+            (Some((pi, _)), None) => (pi, Choice::PaperModel { best_other_gain: None, noise_ratio: None }),
             (None, Some((oi, _))) => (oi, Choice::OnlyOther),
             (None, None) => {
                 let why: Vec<String> = scores
@@ -150,5 +160,5 @@ pub fn compare(
         }
     };
     let n = p.window.end - p.window.drive_on;
-    Ok(Compared { scores, chosen, choice, window_s: p.window_s, samples: (p.split - p.start, n - p.split) })
+    Ok(Compared { scores, chosen, choice, window_s: p.window_s, samples: (p.split - p.start, n - p.split), noise_um })
 }

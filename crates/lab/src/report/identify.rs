@@ -180,11 +180,11 @@ pub fn families_json(c: &Compared) -> Value {
             })
         })
         .collect();
-    let (choice, gain) = match c.choice {
-        Choice::Asked => ("asked", None),
-        Choice::PaperModel { best_other_gain } => ("paper_model", best_other_gain),
-        Choice::Better { gain } => ("better_held_out", Some(gain)),
-        Choice::OnlyOther => ("only_stable_family", None),
+    let (choice, gain, ratio) = match c.choice {
+        Choice::Asked => ("asked", None, None),
+        Choice::PaperModel { best_other_gain, noise_ratio } => ("paper_model", best_other_gain, noise_ratio),
+        Choice::Better { gain, noise_ratio } => ("better_held_out", Some(gain), Some(noise_ratio)),
+        Choice::OnlyOther => ("only_stable_family", None, None),
     };
     json!({
         "families": scores,
@@ -193,6 +193,8 @@ pub fn families_json(c: &Compared) -> Value {
         "rms_um": c.scores[c.chosen].held_rms_um,
         "choice": choice,
         "gain_pct": gain.map(|g| 100.0 * g),
+        "noise_um": c.noise_um,
+        "noise_ratio": ratio,
         "window_s": c.window_s,
         "fit_samples": c.samples.0,
         "held_out_samples": c.samples.1,
@@ -234,17 +236,26 @@ pub fn families_text(c: &Compared, name: &str, rules: &Rules) -> String {
     }
     let kept = c.scores[c.chosen].family.name();
     let min = 100.0 * rules.families.min_gain;
+    let max_ratio = rules.families.max_noise_ratio;
     let why = match c.choice {
         Choice::Asked => format!("the {kept} model, as asked"),
-        Choice::PaperModel { best_other_gain: Some(g) } => format!(
-            "kept the paper's actuator: the best other family is {:.1} % {} held out, and another family needs {min:.0} % better",
+        Choice::PaperModel { best_other_gain: Some(g), noise_ratio } => format!(
+            "kept the paper's actuator: the best other family is {:.1} % {} held out and leaves {:.1} times the noise floor of \
+             {:.4} µm; another family needs {min:.0} % better and at most {max_ratio:.1} times the noise",
             100.0 * g.abs(),
-            if g >= 0.0 { "better" } else { "worse" }
+            if g >= 0.0 { "better" } else { "worse" },
+            noise_ratio.unwrap_or(f64::NAN),
+            c.noise_um
         ),
-        Choice::PaperModel { best_other_gain: None } => "kept the paper's actuator: no other family gave a stable model".into(),
-        Choice::Better { gain } => format!(
-            "kept the {kept} model: {:.1} % lower held-out RMS than the paper's actuator (at least {min:.0} % needed); the hysteresis sits {}",
+        Choice::PaperModel { best_other_gain: None, .. } => {
+            "kept the paper's actuator: no other family gave a stable model".into()
+        }
+        Choice::Better { gain, noise_ratio } => format!(
+            "kept the {kept} model: {:.1} % lower held-out RMS than the paper's actuator (at least {min:.0} % needed), {:.2} \
+             times the noise floor of {:.4} µm (at most {max_ratio:.1}); the hysteresis sits {}",
             100.0 * gain,
+            noise_ratio,
+            c.noise_um,
             c.scores[c.chosen].family.hysteresis().name()
         ),
         Choice::OnlyOther => format!("kept the {kept} model: the paper's actuator gave no stable model"),

@@ -4,8 +4,9 @@
 //! (hysteresis as a restoring force inside the structure, [`crate::model::oscillator`]) is
 //! fitted on the same samples ([`crate::fit::family::fit_oscillator_on`]) and tested on the
 //! same held-out data. It is a finding ([`Kind::RestoringForce`]) when it lowers the held-out
-//! RMS by `families.min_gain`; the unexplained distortion it accounts for is then no longer
-//! reported as unexplained.
+//! RMS by `families.min_gain` and leaves at most `families.max_noise_ratio` times the noise
+//! floor (it explains the record, not only more of it than the extended model); the
+//! unexplained distortion it accounts for is then no longer reported as unexplained.
 
 use super::ModelStep;
 use super::data::Data;
@@ -47,6 +48,7 @@ pub fn restoring_force(
     baseline: &ModelStep,
     terms_kept: bool,
     output_rms_um: f64,
+    noise_um: f64,
     ts: f64,
     r: &Rules,
 ) -> Option<Placement> {
@@ -76,8 +78,10 @@ pub fn restoring_force(
         at_drive_um: baseline.rms_um,
         restoring_um,
         min_gain: f.min_gain,
+        noise_um,
+        max_noise_ratio: f.max_noise_ratio,
         params: o.params,
         substeps: substeps(ts, f),
     };
-    Some(Placement { kept: evidence.gain() >= f.min_gain, evidence })
+    Some(Placement { kept: evidence.meets_rules(), evidence })
 }

@@ -111,12 +111,14 @@ pub fn periodic_text(d: &PeriodicDiagnosis, source: &str, r: &Rules) -> String {
         let _ = writeln!(
             s,
             "\nwhere the hysteresis sits: the Bouc–Wen oscillator (in the restoring force) {:.4} µm held out, the extended \
-             model (at the drive) {:.4} µm: {:.1}% lower ({} at {:.0}% asked)",
+             model (at the drive) {:.4} µm: {:.1}% lower, {:.1} times the noise floor ({}: the rules ask {:.0}% and at most {:.1} times)",
             e.restoring_um,
             e.at_drive_um,
             100.0 * e.gain(),
+            e.noise_ratio(),
             if p.kept { "kept" } else { "not kept" },
-            100.0 * e.min_gain
+            100.0 * e.min_gain,
+            e.max_noise_ratio
         );
     }
     match d.placement.as_ref().filter(|p| p.kept) {
