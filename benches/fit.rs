@@ -16,13 +16,13 @@
 
 use boucwen_lab::design::closed_loop;
 use boucwen_lab::diagnose;
+use boucwen_lab::fit::oscillator::{OscillatorOptions, fit_oscillator};
 use boucwen_lab::fit::{self, Averaging, OeOptions};
 use boucwen_lab::fixtures::hidden::{Case, Effect};
 use boucwen_lab::model::ModelSpec;
 use boucwen_lab::record::Record;
 use boucwen_lab::rules::Rules;
 use boucwen_lab::signal::analysis;
-use boucwen_lab::fit::oscillator::{OscillatorOptions, fit_oscillator};
 use boucwen_sim::oscillator::{FS_HZ, MULTISINE_PERIOD};
 use boucwen_sim::{Bimorph, Scenario};
 use criterion::{Criterion, criterion_group, criterion_main};

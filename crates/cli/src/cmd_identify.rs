@@ -131,7 +131,9 @@ pub fn run(a: IdentifyArgs) -> Result<(), String> {
         }
         return match kept.held_rms_um {
             Some(_) => Ok(()),
-            None => Err(format!("{name}: the {} model's free run is not stable held out", kept.family.name())),
+            None => {
+                Err(format!("{name}: the {} model's free run is not stable held out", kept.family.name()))
+            }
         };
     }
     let o = identify::identify(r, given, &opts, &rules).map_err(fail)?;
@@ -160,7 +162,13 @@ pub fn run(a: IdentifyArgs) -> Result<(), String> {
 }
 
 /// Writes the model file (atomically) and says so on stderr.
-fn save(path: &std::path::Path, model: Model, ts: f64, source: &str, held: Option<f64>) -> Result<(), String> {
+fn save(
+    path: &std::path::Path,
+    model: Model,
+    ts: f64,
+    source: &str,
+    held: Option<f64>,
+) -> Result<(), String> {
     let f = ModelFile {
         model,
         ts_s: ts,

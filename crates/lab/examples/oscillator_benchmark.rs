@@ -10,10 +10,10 @@
 
 use boucwen_lab::fit::Tolerances;
 use boucwen_lab::fit::linear::{fit_linear_oe, select_linear_oe};
-use boucwen_lab::model::linear::OeOrders;
-use boucwen_lab::signal::analysis::rms_diff;
 use boucwen_lab::fit::oscillator::{OscillatorOptions, fit_oscillator, free_run_rms};
+use boucwen_lab::model::linear::OeOrders;
 use boucwen_lab::model::oscillator::{InputReconstruction, OscillatorModel};
+use boucwen_lab::signal::analysis::rms_diff;
 use boucwen_sim::oscillator::{
     BoucWenOscillator, FS_HZ, MULTISINE_PERIOD, Multisine, SWEEP_SAMPLES, add_noise,
 };

@@ -4,8 +4,8 @@
 //!
 //! `cargo run --release -p boucwen-lab --example oscillator_robustness`
 
-use boucwen_lab::signal::analysis::rms_diff;
 use boucwen_lab::fit::oscillator::{OscillatorOptions, fit_oscillator};
+use boucwen_lab::signal::analysis::rms_diff;
 use boucwen_sim::oscillator::{BoucWenOscillator, FS_HZ, MULTISINE_PERIOD, Multisine, add_noise};
 use std::time::Instant;
 

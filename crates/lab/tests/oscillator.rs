@@ -10,10 +10,10 @@
 
 use boucwen_lab::fit::Tolerances;
 use boucwen_lab::fit::linear::fit_linear_oe;
-use boucwen_lab::model::linear::OeOrders;
-use boucwen_lab::signal::analysis::rms_diff;
 use boucwen_lab::fit::oscillator::{OscillatorOptions, fit_oscillator};
+use boucwen_lab::model::linear::OeOrders;
 use boucwen_lab::model::oscillator::{OscillatorModel, OscillatorParams};
+use boucwen_lab::signal::analysis::rms_diff;
 use boucwen_sim::oscillator::{BoucWenOscillator, FS_HZ, MULTISINE_PERIOD, Multisine, add_noise};
 
 const NOISE_M: f64 = 7.4e-6;

@@ -203,7 +203,8 @@ pub enum Evidence {
 /// against the extended model (hysteresis at the drive), on the same held-out data.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct PlacementEvidence {
-    /// The extended model's held-out RMS (µm).
+    /// The held-out RMS of the best model with the hysteresis at the drive: the extended
+    /// model with the terms kept (µm).
     pub at_drive_um: f64,
     /// The oscillator's held-out RMS (µm).
     pub restoring_um: f64,

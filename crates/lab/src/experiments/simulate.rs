@@ -112,7 +112,9 @@ impl fmt::Display for SimulateError {
             SimulateError::Sim(e) => write!(f, "{e}"),
             SimulateError::Record(e) => write!(f, "{e}"),
             SimulateError::ModelFile(e) => write!(f, "{e}"),
-            SimulateError::Model { file, error } => write!(f, "{file}: the model cannot run on this drive: {error}"),
+            SimulateError::Model { file, error } => {
+                write!(f, "{file}: the model cannot run on this drive: {error}")
+            }
         }
     }
 }
@@ -234,7 +236,13 @@ const SCENARIO_HINT: &str = "resample the drive or set [sampling] in the scenari
 pub fn run_model(model: &Path, input: &Path, name: &str, out: &Path) -> Result<Summary, SimulateError> {
     let m = ModelFile::read(model).map_err(SimulateError::ModelFile)?;
     let ts = m.ts_s;
-    let u = column_drive(input, name, ts, "the model", "resample the drive; the model was fitted at this interval")?;
+    let u = column_drive(
+        input,
+        name,
+        ts,
+        "the model",
+        "resample the drive; the model was fitted at this interval",
+    )?;
     let y = m
         .model
         .simulate(&u, ts)
@@ -255,7 +263,13 @@ pub fn run_model(model: &Path, input: &Path, name: &str, out: &Path) -> Result<S
 
 /// The drive column `name` of a CSV file for `who` (what runs it); `ts` is its sample
 /// interval, which a `t` column must match (within 1 %), else the error says `hint`.
-pub fn column_drive(path: &Path, name: &str, ts: f64, who: &str, hint: &str) -> Result<Vec<f64>, SimulateError> {
+pub fn column_drive(
+    path: &Path,
+    name: &str,
+    ts: f64,
+    who: &str,
+    hint: &str,
+) -> Result<Vec<f64>, SimulateError> {
     let file = path.display().to_string();
     let bad = |line: Option<usize>, what: String| SimulateError::File { file: file.clone(), line, what };
     let text =
@@ -314,10 +328,7 @@ pub fn column_drive(path: &Path, name: &str, ts: f64, who: &str, hint: &str) -> 
     if t.len() >= 2 {
         let file_ts = (t[t.len() - 1] - t[0]) / (t.len() - 1) as f64;
         if ((file_ts - ts) / ts).abs() > 0.01 {
-            return Err(bad(
-                None,
-                format!("sampled every {file_ts} s, {who} every {ts} s ({hint})"),
-            ));
+            return Err(bad(None, format!("sampled every {file_ts} s, {who} every {ts} s ({hint})")));
         }
     }
     Ok(u)
@@ -337,7 +348,10 @@ mod tests {
     fn a_column_with_its_time_is_read_and_checked() {
         let p = tmp("drive.csv");
         std::fs::write(&p, "# a comment\nt,v\n0,0.5\n0.001,-0.25\n0.002,1\n").unwrap();
-        assert_eq!(column_drive(&p, "v", 1e-3, "the virtual bimorph", SCENARIO_HINT).unwrap(), vec![0.5, -0.25, 1.0]);
+        assert_eq!(
+            column_drive(&p, "v", 1e-3, "the virtual bimorph", SCENARIO_HINT).unwrap(),
+            vec![0.5, -0.25, 1.0]
+        );
         let e = column_drive(&p, "v", 2e-3, "the virtual bimorph", SCENARIO_HINT).unwrap_err().to_string();
         assert!(e.contains("sampled every 0.001 s"), "{e}");
         std::fs::write(&p, "t,v\n0,0\n0.001,2000\n").unwrap();
@@ -345,10 +359,18 @@ mod tests {
         assert_eq!(e, format!("{}:3: column \"v\": 2000 V is beyond ±1000 V", p.display()));
         std::fs::write(&p, "t,v\n0,0\n0,1\n").unwrap();
         assert!(
-            column_drive(&p, "v", 1e-3, "the virtual bimorph", SCENARIO_HINT).unwrap_err().to_string().ends_with(":3: time 0 does not increase")
+            column_drive(&p, "v", 1e-3, "the virtual bimorph", SCENARIO_HINT)
+                .unwrap_err()
+                .to_string()
+                .ends_with(":3: time 0 does not increase")
         );
         std::fs::write(&p, "1,2\n").unwrap();
-        assert!(column_drive(&p, "v", 1e-3, "the virtual bimorph", SCENARIO_HINT).unwrap_err().to_string().contains(":1: no header row"));
+        assert!(
+            column_drive(&p, "v", 1e-3, "the virtual bimorph", SCENARIO_HINT)
+                .unwrap_err()
+                .to_string()
+                .contains(":1: no header row")
+        );
     }
 
     #[test]

@@ -18,12 +18,12 @@ use super::oscillator::{OscillatorOptions, fit_oscillator};
 use super::{FitError, Tolerances};
 use crate::model::family::UM_PER_M;
 use crate::model::linear::OeOrders;
-use crate::model::oscillator::{InputReconstruction, OutputSampling};
 use crate::model::oscillator::OscillatorModel;
+use crate::model::oscillator::{InputReconstruction, OutputSampling};
 use crate::model::{Family, Model, ModelError};
-use std::ops::Range;
 use crate::rules::FamilyRules;
 use crate::signal::analysis::rms_diff;
+use std::ops::Range;
 
 /// A family fitted on one split.
 #[derive(Clone, Debug)]
@@ -41,6 +41,16 @@ pub struct FamilyFit {
 /// The oscillator's substeps per sample at interval `ts` (module docs).
 pub fn substeps(ts: f64, rules: &FamilyRules) -> usize {
     ((ts / rules.oscillator_step_s).ceil() as usize).clamp(2, rules.max_substeps.max(2))
+}
+
+/// A period (samples) within this of a whole number is one (an equality of floats, not a
+/// decision).
+const WHOLE: f64 = 1e-6;
+
+/// The period in whole samples, when it is one.
+pub fn whole_period(period: f64) -> Option<usize> {
+    (period.is_finite() && period >= 2.0 && (period - period.round()).abs() < WHOLE)
+        .then(|| period.round() as usize)
 }
 
 /// How the oscillator reads a drive: DFT interpolation for a periodic drive of `period`
@@ -115,7 +125,9 @@ pub fn fit_family(
             let orders = sel.scores[sel.chosen].orders;
             Model::Linear(fit_linear_oe(u, y, orders, start..split, &tol)?.model)
         }
-        Family::Oscillator => Model::Oscillator(fit_oscillator_on(&u[..n], &y[..n], ts, start..split, period, rules)?),
+        Family::Oscillator => {
+            Model::Oscillator(fit_oscillator_on(&u[..n], &y[..n], ts, start..split, period, rules)?)
+        }
     };
     let sim = simulate(&model, &u[..n], ts, period);
     let (fit_rms_um, held_rms_um) = match sim {

@@ -209,7 +209,13 @@ pub fn levenberg_marquardt_within<E: Evaluation>(
                     x = cand;
                     cur = next;
                     if rel_actual <= tol.cost && rel_pred <= tol.cost && rho <= 2.0 {
-                        return Some(Run { x, eval: cur, stop: Stop::CostDecrease, iterations: iter + 1, evaluations });
+                        return Some(Run {
+                            x,
+                            eval: cur,
+                            stop: Stop::CostDecrease,
+                            iterations: iter + 1,
+                            evaluations,
+                        });
                     }
                     break;
                 }
@@ -217,7 +223,13 @@ pub fn levenberg_marquardt_within<E: Evaluation>(
                     mu *= nu;
                     nu *= 2.0;
                     if !mu.is_finite() || mu > 1e300 {
-                        return Some(Run { x, eval: cur, stop: Stop::StepSize, iterations: iter, evaluations });
+                        return Some(Run {
+                            x,
+                            eval: cur,
+                            stop: Stop::StepSize,
+                            iterations: iter,
+                            evaluations,
+                        });
                     }
                 }
             }

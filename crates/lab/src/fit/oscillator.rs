@@ -10,7 +10,6 @@
 //!    steps per sample without the decimation, then the full model, both with `ν = 1`;
 //!    with [`OscillatorOptions::fit_nu`] a last pass frees `ν` (kept `≥ 1`).
 
-
 use super::linear::fit_linear_oe;
 use super::lm::{self, Quadratic};
 use super::{FitError, Stop, Tolerances};

@@ -8,10 +8,10 @@
 //! free run).
 
 use super::FitError;
-use crate::model::terms::{Param, TermModel};
-use crate::signal::analysis;
 use super::Tolerances;
 use super::lm::Quadratic;
+use crate::model::terms::{Param, TermModel};
+use crate::signal::analysis;
 
 /// The criterion of a refinement: the model runs from sample 0 over `u[..end]` and is
 /// scored on `[skip, end)`.

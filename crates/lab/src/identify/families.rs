@@ -9,7 +9,7 @@
 //! why and not chosen.
 
 use super::{IdentifyError, Options, Structure, identify, prepare};
-use crate::fit::family::fit_family;
+use crate::fit::family::{fit_family, whole_period};
 use crate::model::{Family, Model, TermModel};
 use crate::record::Record;
 use crate::rules::Rules;
@@ -84,7 +84,8 @@ fn actuator(r: &Record, given: Option<(usize, usize)>, o: &Options, rules: &Rule
     match identify(r, given, &opts, rules) {
         Ok(id) => Scored {
             family: Family::Actuator,
-            held_rms_um: (id.check.unstable.is_none() && id.held_rms_um.is_finite()).then_some(id.held_rms_um),
+            held_rms_um: (id.check.unstable.is_none() && id.held_rms_um.is_finite())
+                .then_some(id.held_rms_um),
             fit_rms_um: id.fit_rms_um,
             model: Ok(Model::Actuator(TermModel::from(id.model))),
             seconds: t0.elapsed().as_secs_f64(),
@@ -110,7 +111,7 @@ pub fn compare(
 ) -> Result<Compared, IdentifyError> {
     let p = prepare(r, given, o.fit_fraction, rules)?;
     let (u, y) = p.signals(r);
-    let period = p.drive.period_samples.filter(|q| (q - q.round()).abs() < 1e-6).map(|q| q.round() as usize);
+    let period = p.drive.period_samples.and_then(whole_period);
     let noise_um = steady::noise_floor(&y[p.split..], r.ts, &p.drive, rules).0;
     let mut scores = Vec::new();
     for &family in families {
@@ -124,7 +125,13 @@ pub fn compare(
                     held_rms_um: fit.held_rms_um,
                     seconds: fit.seconds,
                 },
-                Err(e) => Scored { family: f, model: Err(e.to_string()), fit_rms_um: None, held_rms_um: None, seconds: 0.0 },
+                Err(e) => Scored {
+                    family: f,
+                    model: Err(e.to_string()),
+                    fit_rms_um: None,
+                    held_rms_um: None,
+                    seconds: 0.0,
+                },
             },
         };
         scores.push(s);
@@ -136,7 +143,8 @@ pub fn compare(
     let (chosen, choice) = if scores.len() == 1 {
         (0, Choice::Asked)
     } else {
-        let paper = scores.iter().position(|s| s.family == Family::Actuator).and_then(|i| held(i).map(|h| (i, h)));
+        let paper =
+            scores.iter().position(|s| s.family == Family::Actuator).and_then(|i| held(i).map(|h| (i, h)));
         let others = best_of(&mut (0..scores.len()).filter(|&i| scores[i].family != Family::Actuator));
         match (paper, others) {
             (Some((pi, ph)), Some((oi, oh))) => {
@@ -153,12 +161,28 @@ pub fn compare(
             (None, None) => {
                 let why: Vec<String> = scores
                     .iter()
-                    .map(|s| format!("{}: {}", s.family.name(), s.model.as_ref().err().map_or("diverges held out", |e| e)))
+                    .map(|s| {
+                        format!(
+                            "{}: {}",
+                            s.family.name(),
+                            s.model.as_ref().err().map_or("diverges held out", |e| e)
+                        )
+                    })
                     .collect();
-                return Err(IdentifyError::Option(format!("no family gave a stable model ({})", why.join("; "))));
+                return Err(IdentifyError::Option(format!(
+                    "no family gave a stable model ({})",
+                    why.join("; ")
+                )));
             }
         }
     };
     let n = p.window.end - p.window.drive_on;
-    Ok(Compared { scores, chosen, choice, window_s: p.window_s, samples: (p.split - p.start, n - p.split), noise_um })
+    Ok(Compared {
+        scores,
+        chosen,
+        choice,
+        window_s: p.window_s,
+        samples: (p.split - p.start, n - p.split),
+        noise_um,
+    })
 }

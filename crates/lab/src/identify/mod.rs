@@ -219,7 +219,9 @@ pub fn prepare(
     rules: &Rules,
 ) -> Result<Prepared, IdentifyError> {
     if !(fit_fraction.is_finite() && (0.1..=0.9).contains(&fit_fraction)) {
-        return Err(IdentifyError::Option(format!("--fit-fraction {fit_fraction}: must be between 0.1 and 0.9")));
+        return Err(IdentifyError::Option(format!(
+            "--fit-fraction {fit_fraction}: must be between 0.1 and 0.9"
+        )));
     }
     let ts = r.ts;
     let (w, drive) = steady::steady_window(&r.u, &r.y, ts, given, rules)?;

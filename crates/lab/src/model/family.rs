@@ -198,9 +198,11 @@ impl Model {
     pub fn simulate(&self, u: &[f64], ts: f64) -> Result<Vec<f64>, ModelError> {
         let y = match self {
             Model::Actuator(m) => m.simulate(u, ts)?,
-            Model::Oscillator(o) => {
-                o.simulate_with(u, ts, InputReconstruction::CubicSpline)?.into_iter().map(|v| v * UM_PER_M).collect()
-            }
+            Model::Oscillator(o) => o
+                .simulate_with(u, ts, InputReconstruction::CubicSpline)?
+                .into_iter()
+                .map(|v| v * UM_PER_M)
+                .collect(),
             Model::Linear(l) => l.simulate(u)?,
         };
         if y.iter().any(|v| !v.is_finite()) {
@@ -212,7 +214,12 @@ impl Model {
     /// The steady-state output (µm) over one period `u_period` of a periodic drive: the
     /// period is run `warmup` times from rest first, and the next one is returned. The
     /// oscillator interpolates the period in the DFT domain ([`OscillatorModel::simulate_periodic`]).
-    pub fn simulate_periodic(&self, u_period: &[f64], ts: f64, warmup: usize) -> Result<Vec<f64>, ModelError> {
+    pub fn simulate_periodic(
+        &self,
+        u_period: &[f64],
+        ts: f64,
+        warmup: usize,
+    ) -> Result<Vec<f64>, ModelError> {
         let n = u_period.len();
         let y = match self {
             Model::Oscillator(o) => {
@@ -251,9 +258,14 @@ mod tests {
 
     #[test]
     fn the_oscillator_runs_in_micrometres_and_its_steady_state_repeats() {
-        let o = OscillatorModel { params: OscillatorParams::BENCHMARK, substeps: 4, output: OutputSampling::Instant };
+        let o = OscillatorModel {
+            params: OscillatorParams::BENCHMARK,
+            substeps: 4,
+            output: OutputSampling::Instant,
+        };
         let ts = 1.0 / 750.0;
-        let u: Vec<f64> = (0..750).map(|k| 50.0 * (std::f64::consts::TAU * 10.0 * k as f64 * ts).sin()).collect();
+        let u: Vec<f64> =
+            (0..750).map(|k| 50.0 * (std::f64::consts::TAU * 10.0 * k as f64 * ts).sin()).collect();
         let m = Model::Oscillator(o.clone());
         let y_um = m.simulate(&u, ts).expect("simulate");
         let y_m = o.simulate(&u, ts).expect("simulate");

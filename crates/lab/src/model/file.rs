@@ -144,7 +144,12 @@ impl ModelFile {
                     branches: h
                         .branches
                         .iter()
-                        .map(|b| BranchFile { order: b.order, alpha_s: b.alpha_s, alpha_c: b.alpha_c, ar: b.ar })
+                        .map(|b| BranchFile {
+                            order: b.order,
+                            alpha_s: b.alpha_s,
+                            alpha_c: b.alpha_c,
+                            ar: b.ar,
+                        })
                         .collect(),
                     drift: h.drift.clone(),
                     delay: h.delay,
@@ -202,7 +207,9 @@ impl ModelFile {
         match v.get("version") {
             Some(n) if n.as_u64() == Some(u64::from(VERSION)) => {}
             Some(n) if n.as_u64().is_some_and(|n| n > u64::from(VERSION)) => {
-                return Err(format!("version {n}: this build reads version {VERSION}; a newer boucwen wrote it"));
+                return Err(format!(
+                    "version {n}: this build reads version {VERSION}; a newer boucwen wrote it"
+                ));
             }
             Some(n) => return Err(format!("\"version\" is {n}; expected {VERSION}")),
             None => return Err(format!("no \"version\" (expected {VERSION})")),
@@ -212,7 +219,10 @@ impl ModelFile {
             return Err(format!("\"ts_s\" is {}: a sample interval in seconds, > 0", h.ts_s));
         }
         if h.units.y != "um" {
-            return Err(format!("\"units.y\" is {:?}; models run in \"um\"", crate::record::excerpt(&h.units.y)));
+            return Err(format!(
+                "\"units.y\" is {:?}; models run in \"um\"",
+                crate::record::excerpt(&h.units.y)
+            ));
         }
         let model = match h.family.as_str() {
             "actuator" => Model::Actuator(actuator(h.model, h.ts_s)?),
@@ -274,8 +284,10 @@ fn actuator(v: serde_json::Value, ts: f64) -> Result<TermModel, String> {
     }
     let t = &f.terms;
     let term_numbers = t.input_clamp.iter().chain(&t.output_clamp).flatten().copied().chain([t.q_ref_um]);
-    let creep_ok = t.creep.len() <= 4 && t.creep.iter().all(|c| c.tau_s.is_finite() && c.tau_s > 0.0 && c.gain.is_finite());
-    let stiff_ok = t.stiffening.len() <= 4 && t.stiffening.iter().all(|s| s.power >= 2 && s.power <= 9 && s.coeff.is_finite());
+    let creep_ok = t.creep.len() <= 4
+        && t.creep.iter().all(|c| c.tau_s.is_finite() && c.tau_s > 0.0 && c.gain.is_finite());
+    let stiff_ok = t.stiffening.len() <= 4
+        && t.stiffening.iter().all(|s| s.power >= 2 && s.power <= 9 && s.coeff.is_finite());
     if term_numbers.into_iter().any(|v| !v.is_finite()) || !creep_ok || !stiff_ok || t.extra_delay > 10_000 {
         return Err("\"model.terms\": a clamp, creep, stiffening or delay out of range".into());
     }

@@ -18,9 +18,9 @@ pub mod oscillator;
 pub mod poles;
 pub mod terms;
 
-pub use host::{Branch, HostModel, LoopShape, MAX_BRANCHES, MAX_DELAY, ModelError, ModelSpec, delayed};
 pub use family::{Family, Model, Placement, Structure};
 pub use file::{ModelFile, ModelFileError};
+pub use host::{Branch, HostModel, LoopShape, MAX_BRANCHES, MAX_DELAY, ModelError, ModelSpec, delayed};
 pub use terms::{TermModel, Terms};
 
 /// Smallest amplitude of a harmonic the model gets a branch for, relative to the output's

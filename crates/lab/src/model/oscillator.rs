@@ -56,7 +56,6 @@ use boucwen_sim::oscillator::{FIR_TAPS, decimate_chain, interpolate_periodic};
 
 use serde::{Deserialize, Serialize};
 
-
 /// Names of the parameters in [`OscillatorModel::params`] order.
 pub const PARAM_NAMES: [&str; 7] = ["m", "c", "k", "alpha", "beta_gamma", "beta_delta", "nu"];
 
@@ -232,7 +231,11 @@ impl OscillatorModel {
     }
 }
 
-pub(crate) fn fine_input(u: &[f64], input: InputReconstruction, substeps: usize) -> Result<Vec<f64>, ModelError> {
+pub(crate) fn fine_input(
+    u: &[f64],
+    input: InputReconstruction,
+    substeps: usize,
+) -> Result<Vec<f64>, ModelError> {
     let s = substeps;
     match input {
         InputReconstruction::Periodic { period } => {
@@ -248,7 +251,12 @@ pub(crate) fn fine_input(u: &[f64], input: InputReconstruction, substeps: usize)
     }
 }
 
-pub(crate) fn to_samples(fine: &[f64], n: usize, substeps: usize, output: OutputSampling) -> Result<Vec<f64>, ModelError> {
+pub(crate) fn to_samples(
+    fine: &[f64],
+    n: usize,
+    substeps: usize,
+    output: OutputSampling,
+) -> Result<Vec<f64>, ModelError> {
     let mut y: Vec<f64> = match output {
         OutputSampling::Instant => fine.iter().step_by(substeps).copied().collect(),
         OutputSampling::FirDecimation => decimate_chain(fine, substeps)
@@ -296,7 +304,12 @@ pub(crate) fn natural_spline(u: &[f64], s: usize) -> Vec<f64> {
 
 /// Simulates from rest on the fine grid; with `nsens > 0` also the sensitivities
 /// `∂y/∂θ_j` of the first `nsens` parameters (order of [`PARAM_NAMES`]).
-pub(crate) fn run(p: &OscillatorParams, u: &[f64], h: f64, nsens: usize) -> Result<(Vec<f64>, Vec<Vec<f64>>), ModelError> {
+pub(crate) fn run(
+    p: &OscillatorParams,
+    u: &[f64],
+    h: f64,
+    nsens: usize,
+) -> Result<(Vec<f64>, Vec<Vec<f64>>), ModelError> {
     p.validate()?;
     let ns = nsens.min(7);
     let (m, c, k, alpha, ba, bd, nu) = (p.m, p.c, p.k, p.alpha, p.beta_gamma, p.beta_delta, p.nu);
@@ -379,4 +392,3 @@ pub(crate) fn run(p: &OscillatorParams, u: &[f64], h: f64, nsens: usize) -> Resu
     }
     Ok((ys, sens))
 }
-

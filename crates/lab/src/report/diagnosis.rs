@@ -416,7 +416,7 @@ pub fn finding_text(f: &Finding) -> String {
         Evidence::Distortion(e) => distortion_text(e),
         Evidence::RestoringForce(e) => format!(
             "hysteresis in the restoring force: the Bouc–Wen oscillator (m·y'' + c·y' + k·y + z = u, the loop z inside \
-             the structure) leaves {:.4} µm held out where the extended model (hysteresis at the drive) leaves {:.4} µm: \
+             the structure) leaves {:.4} µm held out where the extended model with its terms (hysteresis at the drive) leaves {:.4} µm: \
              {:.1}% lower (at least {:.0}% asked), {:.2} times the noise floor of {:.4} µm (at most {:.1} asked); m = {:.5}, c = {:.5}, k = {:.6e}, alpha = {:.6e}, beta*gamma = {:.5}, \
              beta*delta = {:.5}; `identify --model oscillator` fits it and `--save` keeps it",
             e.restoring_um,

@@ -150,7 +150,8 @@ pub fn text(o: &Identified, name: &str, rules: &Rules) -> String {
 /// A model's structure and parameters as JSON.
 pub fn model_json(m: &Model) -> Value {
     let s = m.structure();
-    let params: serde_json::Map<String, Value> = m.parameters().into_iter().map(|(k, v)| (k, json!(v))).collect();
+    let params: serde_json::Map<String, Value> =
+        m.parameters().into_iter().map(|(k, v)| (k, json!(v))).collect();
     json!({
         "name": m.name(),
         "family": s.family.name(),

@@ -200,10 +200,13 @@ pub fn diagnose(records: &[Realisation<'_>], ts: f64, r: &Rules) -> Result<Perio
     let baseline = &compared[baseline_step];
     let kept = terms::select(&data, baseline, noise_um, output_rms_um, ts, r)?;
     let mut findings = findings::findings(&data, baseline, &kept, output_rms_um, ts, r);
-    let placement = placement::restoring_force(&data, baseline, !kept.steps.is_empty(), output_rms_um, noise_um, ts, r);
+    let best = kept.steps.last().unwrap_or(baseline);
+    let placement = placement::restoring_force(&data, baseline, best, output_rms_um, noise_um, ts, r);
     if let Some(p) = placement.as_ref().filter(|p| p.kept) {
-        // What the extended model left unexplained is the loop's, inside the structure.
-        findings.retain(|f| !matches!(f.evidence, Evidence::UnexplainedDistortion { .. }));
+        // The distortion the terms took or left is the loop's, inside the structure.
+        findings.retain(|f| {
+            !matches!(f.evidence, Evidence::UnexplainedDistortion { .. } | Evidence::Distortion(_))
+        });
         findings.insert(0, p.finding());
     }
     Ok(PeriodicDiagnosis {

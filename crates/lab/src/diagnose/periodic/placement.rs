@@ -1,17 +1,19 @@
-//! Stage 6 of a periodic diagnosis: where the hysteresis sits. When no term explains what
-//! the extended model (hysteresis at the drive) leaves, and it leaves at least
-//! `families.min_residual_share` of the output's RMS held out, the Bouc–Wen oscillator
+//! Stage 6 of a periodic diagnosis: where the hysteresis sits. When the extended model
+//! (hysteresis at the drive) leaves at least `families.min_residual_share` of the output's
+//! RMS held out, the Bouc–Wen oscillator
 //! (hysteresis as a restoring force inside the structure, [`crate::model::oscillator`]) is
 //! fitted on the same samples ([`crate::fit::family::fit_oscillator_on`]) and tested on the
 //! same held-out data. It is a finding ([`Kind::RestoringForce`]) when it lowers the held-out
-//! RMS by `families.min_gain` and leaves at most `families.max_noise_ratio` times the noise
+//! RMS of the best model with hysteresis at the drive (the extended model and the terms kept)
+//! by `families.min_gain` and leaves at most `families.max_noise_ratio` times the noise
 //! floor (it explains the record, not only more of it than the extended model); the
-//! unexplained distortion it accounts for is then no longer reported as unexplained.
+//! distortion findings (terms kept, distortion left unexplained) are then superseded: the
+//! oscillator accounts for them.
 
 use super::ModelStep;
 use super::data::Data;
 use crate::diagnose::evidence::{Evidence, Finding, Kind, PlacementEvidence};
-use crate::fit::family::{fit_oscillator_on, simulate, substeps};
+use crate::fit::family::{fit_oscillator_on, simulate, substeps, whole_period};
 use crate::model::Model;
 use crate::rules::Rules;
 use crate::signal::analysis;
@@ -46,17 +48,17 @@ impl Placement {
 pub fn restoring_force(
     data: &Data,
     baseline: &ModelStep,
-    terms_kept: bool,
+    best: &ModelStep,
     output_rms_um: f64,
     noise_um: f64,
     ts: f64,
     r: &Rules,
 ) -> Option<Placement> {
     let f = &r.families;
-    if terms_kept || !baseline.usable() || baseline.rms_um < f.min_residual_share * output_rms_um {
+    if !baseline.usable() || !best.usable() || baseline.rms_um < f.min_residual_share * output_rms_um {
         return None;
     }
-    let period = Some(data.period.round() as usize).filter(|p| (data.period - *p as f64).abs() < 1e-6);
+    let period = whole_period(data.period);
     let s0 = &data.sets[0];
     let end = data.fit_end.min(s0.u.len());
     let osc = fit_oscillator_on(&s0.u[..end], &s0.y[..end], ts, s0.start..end, period, f).ok()?;
@@ -75,7 +77,7 @@ pub fn restoring_force(
     }
     let Model::Oscillator(o) = model else { return None };
     let evidence = PlacementEvidence {
-        at_drive_um: baseline.rms_um,
+        at_drive_um: best.rms_um,
         restoring_um,
         min_gain: f.min_gain,
         noise_um,
