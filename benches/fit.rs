@@ -4,6 +4,9 @@
 //! - `fit/oe/extended/20k`, `fit/oe/enhanced3/20k`: `fit::fit_oe` as `boucwen identify`
 //!   runs it (the diagnosis' fit options, five starts) on the first half of a 20,000-sample
 //!   record of the virtual bimorph with a hidden 3rd harmonic (seed 1);
+//! - `fit/oscillator/benchmark`: `fit::oscillator::fit_oscillator` on the Bouc–Wen
+//!   benchmark's training record (`../shared/data/bouc-wen-benchmark/train.csv` from the
+//!   workspace root; skipped with a message when missing), the benchmark's options;
 //! - `diagnose/10k`, `diagnose/100k`, `diagnose/1m`: reading a CSV record of the default
 //!   actuator under a 23 Hz sine (10⁴, 10⁵, 10⁶ samples at 1 kHz) and diagnosing it, as
 //!   `boucwen diagnose` does (less the printing). The records are simulated and written
@@ -13,12 +16,14 @@
 
 use boucwen_lab::design::closed_loop;
 use boucwen_lab::diagnose;
+use boucwen_lab::fit::oscillator::{OscillatorOptions, fit_oscillator};
 use boucwen_lab::fit::{self, Averaging, OeOptions};
 use boucwen_lab::fixtures::hidden::{Case, Effect};
 use boucwen_lab::model::ModelSpec;
 use boucwen_lab::record::Record;
 use boucwen_lab::rules::Rules;
 use boucwen_lab::signal::analysis;
+use boucwen_sim::oscillator::{FS_HZ, MULTISINE_PERIOD};
 use boucwen_sim::{Bimorph, Scenario};
 use criterion::{Criterion, criterion_group, criterion_main};
 use std::hint::black_box;
@@ -88,5 +93,36 @@ fn diagnoses(c: &mut Criterion) {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
-criterion_group!(benches, fits, diagnoses);
+fn oscillator(c: &mut Criterion) {
+    let path =
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data/bouc-wen-benchmark/train.csv");
+    let Ok(text) = std::fs::read_to_string(&path) else {
+        println!("fit/oscillator/benchmark: skipped, {} not found", path.display());
+        return;
+    };
+    let (mut u, mut y) = (Vec::new(), Vec::new());
+    for line in text.lines().skip(1) {
+        let f: Vec<f64> = line.split(',').map(|v| v.parse().expect("number")).collect();
+        u.push(f[1]);
+        y.push(f[2]);
+    }
+    let opt = OscillatorOptions::benchmark(MULTISINE_PERIOD);
+    let run = || fit_oscillator(&u, &y, 1.0 / FS_HZ, &opt).expect("fit");
+    let t0 = std::time::Instant::now();
+    let first = run();
+    println!(
+        "fit/oscillator/benchmark: {:.3} µm in {:.2} s, {} after {} iterations, {} evaluations",
+        first.rms_fit * 1e6,
+        t0.elapsed().as_secs_f64(),
+        first.stop,
+        first.iterations,
+        first.evaluations
+    );
+    let mut g = c.benchmark_group("fit/oscillator");
+    g.sample_size(10).warm_up_time(Duration::from_millis(1)).measurement_time(Duration::from_secs(40));
+    g.bench_function("benchmark", |b| b.iter(|| black_box(run().rms_fit)));
+    g.finish();
+}
+
+criterion_group!(benches, fits, diagnoses, oscillator);
 criterion_main!(benches);

@@ -6,11 +6,14 @@
 //! `--method rls` runs the paper's section 3 RLS procedure
 //! ([`boucwen_lab::fit::fit_paper_rls`], at most one branch). `--model extended` (default)
 //! or `enhanced`, whose branches are `--harmonics` or, if not given, the odd harmonic that
-//! stands out in the fitted part of the output (3 if none does).
+//! stands out in the fitted part of the output (3 if none does). `--model linear`,
+//! `oscillator` and `auto` fit the other families on the same split
+//! ([`boucwen_lab::identify::families`]); `--save MODEL.json` writes the model kept.
 
 use crate::cmd_diagnose::import_json;
 use crate::record_args::RecordArgs;
-use boucwen_lab::identify::{self, Method as LabMethod, Options, Structure};
+use boucwen_lab::identify::{self, Method as LabMethod, Options, Structure, families};
+use boucwen_lab::model::{Family, Model, ModelFile, TermModel};
 use boucwen_lab::report::diagnosis::instability_text;
 use boucwen_lab::report::identify as report;
 use boucwen_lab::rules::Rules;
@@ -22,9 +25,16 @@ enum ModelKind {
     Extended,
     /// The extended model plus harmonic branches of the drive (eqs. 6/7).
     Enhanced,
+    /// No hysteresis: a linear output-error model, orders chosen held out.
+    Linear,
+    /// The Bouc–Wen oscillator: hysteresis as a restoring force inside the structure.
+    Oscillator,
+    /// Every family (actuator, oscillator, linear) fitted; the best held out kept, the
+    /// paper's actuator unless another is better by the rules' `families.min_gain`.
+    Auto,
 }
 
-#[derive(Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
 enum Method {
     /// Output-error fit: minimises the free-run error.
     Oe,
@@ -58,6 +68,10 @@ pub struct IdentifyArgs {
     /// Output-error fit: accept only a loop the direct inverse (eqs. 16/17) can invert.
     #[arg(long)]
     invertible: bool,
+    /// Write the model kept to this file (versioned JSON, for `compare` and `simulate
+    /// --model`).
+    #[arg(long, value_name = "MODEL.json")]
+    save: Option<PathBuf>,
     /// Print one JSON object on stdout.
     #[arg(long)]
     json: bool,
@@ -70,10 +84,19 @@ pub fn run(a: IdentifyArgs) -> Result<(), String> {
     let r = &imported.record;
     r.validate_for_fit(rules.sine.min_samples).map_err(|e| e.to_string())?;
     let given = a.record.window(r)?;
+    let families = match a.model {
+        ModelKind::Linear => Some(vec![Family::Linear]),
+        ModelKind::Oscillator => Some(vec![Family::Oscillator]),
+        ModelKind::Auto => Some(Family::ALL.to_vec()),
+        ModelKind::Extended | ModelKind::Enhanced => None,
+    };
+    if families.is_some() && (a.method == Method::Rls || !a.harmonics.is_empty()) {
+        return Err("--method rls and --harmonics go with --model extended or enhanced".into());
+    }
     let opts = Options {
         structure: match a.model {
-            ModelKind::Extended => Structure::Extended,
             ModelKind::Enhanced => Structure::Enhanced,
+            _ => Structure::Extended,
         },
         harmonics: a.harmonics.clone(),
         method: match a.method {
@@ -84,10 +107,36 @@ pub fn run(a: IdentifyArgs) -> Result<(), String> {
         drive_hz: a.drive_hz,
         invertible: a.invertible,
     };
-    let o = identify::identify(r, given, &opts, &rules).map_err(|e| match e {
+    let fail = |e: identify::IdentifyError| match e {
         identify::IdentifyError::Option(why) => why,
         e => format!("{name}: {e}"),
-    })?;
+    };
+    if let Some(families) = families {
+        let c = families::compare(r, given, &families, &opts, &rules).map_err(fail)?;
+        if a.json {
+            let mut j = report::families_json(&c);
+            j["file"] = serde_json::json!(name);
+            j["import"] = import_json(&imported);
+            println!("{j}");
+        } else {
+            println!("read as {}", imported.info.describe());
+            print!("{}", report::families_text(&c, &name, &rules));
+        }
+        let kept = &c.scores[c.chosen];
+        let Ok(model) = &kept.model else {
+            return Err(format!("{name}: the {} model could not be fitted", kept.family.name()));
+        };
+        if let Some(path) = &a.save {
+            save(path, model.clone(), r.ts, &name, kept.held_rms_um)?;
+        }
+        return match kept.held_rms_um {
+            Some(_) => Ok(()),
+            None => {
+                Err(format!("{name}: the {} model's free run is not stable held out", kept.family.name()))
+            }
+        };
+    }
+    let o = identify::identify(r, given, &opts, &rules).map_err(fail)?;
     if a.json {
         let mut j = report::json(&o);
         j["file"] = serde_json::json!(name);
@@ -96,6 +145,10 @@ pub fn run(a: IdentifyArgs) -> Result<(), String> {
     } else {
         println!("read as {}", imported.info.describe());
         print!("{}", report::text(&o, &name, &rules));
+    }
+    if let (Some(path), None) = (&a.save, &o.check.unstable) {
+        let model = Model::Actuator(TermModel::from(o.model.clone()));
+        save(path, model, r.ts, &name, Some(o.held_rms_um))?;
     }
     match &o.check.unstable {
         Some(why) => Err(format!(
@@ -106,4 +159,24 @@ pub fn run(a: IdentifyArgs) -> Result<(), String> {
         )),
         None => Ok(()),
     }
+}
+
+/// Writes the model file (atomically) and says so on stderr.
+fn save(
+    path: &std::path::Path,
+    model: Model,
+    ts: f64,
+    source: &str,
+    held: Option<f64>,
+) -> Result<(), String> {
+    let f = ModelFile {
+        model,
+        ts_s: ts,
+        u_unit: "V".into(),
+        fitted_on: Some(source.to_string()),
+        held_out_rms_um: held,
+    };
+    f.write(path).map_err(|e| e.to_string())?;
+    eprintln!("wrote {}", path.display());
+    Ok(())
 }

@@ -28,6 +28,9 @@ pub enum Kind {
     OddDistortion,
     /// Even nonlinear distortion under a periodic or multisine drive.
     EvenDistortion,
+    /// Hysteresis as a restoring force inside the structure (the Bouc–Wen oscillator), not
+    /// at the drive.
+    RestoringForce,
 }
 
 impl Kind {
@@ -43,6 +46,7 @@ impl Kind {
             Kind::InputDelay => "input_delay",
             Kind::OddDistortion => "odd_distortion",
             Kind::EvenDistortion => "even_distortion",
+            Kind::RestoringForce => "restoring_force_hysteresis",
         }
     }
 
@@ -163,6 +167,8 @@ pub enum Evidence {
     InputDelay(DelayEvidence),
     /// A stiffening term kept under a periodic or multisine drive.
     Distortion(DistortionEvidence),
+    /// The hysteresis sits in the restoring force: the oscillator beat the extended model.
+    RestoringForce(PlacementEvidence),
     /// A harmonic the extended model leaves and no term removed.
     UnexplainedHarmonic {
         /// Its peak in the extended model's held-out residual (µm).
@@ -191,6 +197,44 @@ pub enum Evidence {
         /// off is the model's response to them.
         on_drive_lines: bool,
     },
+}
+
+/// Where the hysteresis sits: the Bouc–Wen oscillator (hysteresis as a restoring force)
+/// against the extended model (hysteresis at the drive), on the same held-out data.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PlacementEvidence {
+    /// The held-out RMS of the best model with the hysteresis at the drive: the extended
+    /// model with the terms kept (µm).
+    pub at_drive_um: f64,
+    /// The oscillator's held-out RMS (µm).
+    pub restoring_um: f64,
+    /// The least gain the rules ask of another family (`families.min_gain`).
+    pub min_gain: f64,
+    /// The output's noise floor held out (µm).
+    pub noise_um: f64,
+    /// The most the oscillator may leave, in multiples of the noise (`families.max_noise_ratio`).
+    pub max_noise_ratio: f64,
+    /// The oscillator's parameters (SI, metres).
+    pub params: crate::model::oscillator::OscillatorParams,
+    /// Its integration substeps per sample.
+    pub substeps: usize,
+}
+
+impl PlacementEvidence {
+    /// `1 − restoring/at_drive`.
+    pub fn gain(&self) -> f64 {
+        1.0 - self.restoring_um / self.at_drive_um.max(1e-300)
+    }
+
+    /// What the oscillator leaves, in multiples of the noise floor.
+    pub fn noise_ratio(&self) -> f64 {
+        self.restoring_um / self.noise_um.max(1e-300)
+    }
+
+    /// Whether the rules name the restoring force: the gain and the noise both met.
+    pub fn meets_rules(&self) -> bool {
+        self.gain() >= self.min_gain && self.noise_ratio() <= self.max_noise_ratio
+    }
 }
 
 /// A harmonic branch kept.

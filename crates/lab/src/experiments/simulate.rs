@@ -5,6 +5,7 @@
 //! scenario's. The record (`t,u,y`) is written atomically.
 
 use crate::design::closed_loop;
+use crate::model::{ModelError, ModelFile, ModelFileError};
 use crate::record::{Record, RecordError};
 use crate::signal::analysis;
 use boucwen_sim::{Bimorph, Scenario, SimError};
@@ -82,6 +83,15 @@ pub enum SimulateError {
     Sim(SimError),
     /// The record could not be built or written.
     Record(RecordError),
+    /// The model file was refused.
+    ModelFile(ModelFileError),
+    /// The model cannot run on the drive.
+    Model {
+        /// The model file.
+        file: String,
+        /// Why.
+        error: ModelError,
+    },
 }
 
 impl fmt::Display for SimulateError {
@@ -101,6 +111,10 @@ impl fmt::Display for SimulateError {
             SimulateError::File { file, line: None, what } => write!(f, "{file}: {what}"),
             SimulateError::Sim(e) => write!(f, "{e}"),
             SimulateError::Record(e) => write!(f, "{e}"),
+            SimulateError::ModelFile(e) => write!(f, "{e}"),
+            SimulateError::Model { file, error } => {
+                write!(f, "{file}: the model cannot run on this drive: {error}")
+            }
         }
     }
 }
@@ -165,7 +179,7 @@ pub fn run(scenario: &Scenario, drive: &Drive, out: &Path) -> Result<Summary, Si
     let ts = scenario.sampling.ts_s;
     let u = match drive {
         Drive::Sine { freq_hz, amplitude_v, seconds } => sine_drive(*freq_hz, *amplitude_v, *seconds, ts)?,
-        Drive::Column { path, name } => column_drive(path, name, ts)?,
+        Drive::Column { path, name } => column_drive(path, name, ts, "the virtual bimorph", SCENARIO_HINT)?,
     };
     let y = Bimorph::new(scenario)?.run(&u)?;
     let record = Record::new(&out.display().to_string(), 0.0, ts, u, y, None)?;
@@ -213,7 +227,49 @@ pub fn sine_drive(f: f64, amplitude: f64, seconds: f64, ts: f64) -> Result<Vec<f
 
 /// The drive column `name` of a CSV file; `ts` is the scenario's sample interval, which a
 /// `t` column must match (within 1 %).
-pub fn column_drive(path: &Path, name: &str, ts: f64) -> Result<Vec<f64>, SimulateError> {
+/// What to do when a drive file's interval is not the virtual bimorph's.
+const SCENARIO_HINT: &str = "resample the drive or set [sampling] in the scenario";
+
+/// Runs the model of the file `model` on the drive column `name` of `input` and writes its
+/// rows (`t` if the input has it, else `k·Ts`) with the drive as `u` and the prediction as
+/// `y [um]` to `out`, atomically.
+pub fn run_model(model: &Path, input: &Path, name: &str, out: &Path) -> Result<Summary, SimulateError> {
+    let m = ModelFile::read(model).map_err(SimulateError::ModelFile)?;
+    let ts = m.ts_s;
+    let u = column_drive(
+        input,
+        name,
+        ts,
+        "the model",
+        "resample the drive; the model was fitted at this interval",
+    )?;
+    let y = m
+        .model
+        .simulate(&u, ts)
+        .map_err(|error| SimulateError::Model { file: model.display().to_string(), error })?;
+    let t: Vec<f64> = (0..u.len()).map(|k| k as f64 * ts).collect();
+    crate::record::write_columns(out, &[("t", &t), ("u", &u), ("y [um]", &y)])?;
+    let (lo, hi) = crate::signal::analysis::extent(&y);
+    Ok(Summary {
+        out: out.display().to_string(),
+        drive: format!("{}:{name} through {}", input.display(), m.model.name()),
+        samples: u.len(),
+        ts_s: ts,
+        y_min_um: lo,
+        y_max_um: hi,
+        harmonics: vec![],
+    })
+}
+
+/// The drive column `name` of a CSV file for `who` (what runs it); `ts` is its sample
+/// interval, which a `t` column must match (within 1 %), else the error says `hint`.
+pub fn column_drive(
+    path: &Path,
+    name: &str,
+    ts: f64,
+    who: &str,
+    hint: &str,
+) -> Result<Vec<f64>, SimulateError> {
     let file = path.display().to_string();
     let bad = |line: Option<usize>, what: String| SimulateError::File { file: file.clone(), line, what };
     let text =
@@ -272,13 +328,7 @@ pub fn column_drive(path: &Path, name: &str, ts: f64) -> Result<Vec<f64>, Simula
     if t.len() >= 2 {
         let file_ts = (t[t.len() - 1] - t[0]) / (t.len() - 1) as f64;
         if ((file_ts - ts) / ts).abs() > 0.01 {
-            return Err(bad(
-                None,
-                format!(
-                    "sampled every {file_ts} s, the virtual bimorph every {ts} s (resample the drive or set \
-                     [sampling] in the scenario)"
-                ),
-            ));
+            return Err(bad(None, format!("sampled every {file_ts} s, {who} every {ts} s ({hint})")));
         }
     }
     Ok(u)
@@ -298,18 +348,29 @@ mod tests {
     fn a_column_with_its_time_is_read_and_checked() {
         let p = tmp("drive.csv");
         std::fs::write(&p, "# a comment\nt,v\n0,0.5\n0.001,-0.25\n0.002,1\n").unwrap();
-        assert_eq!(column_drive(&p, "v", 1e-3).unwrap(), vec![0.5, -0.25, 1.0]);
-        let e = column_drive(&p, "v", 2e-3).unwrap_err().to_string();
+        assert_eq!(
+            column_drive(&p, "v", 1e-3, "the virtual bimorph", SCENARIO_HINT).unwrap(),
+            vec![0.5, -0.25, 1.0]
+        );
+        let e = column_drive(&p, "v", 2e-3, "the virtual bimorph", SCENARIO_HINT).unwrap_err().to_string();
         assert!(e.contains("sampled every 0.001 s"), "{e}");
         std::fs::write(&p, "t,v\n0,0\n0.001,2000\n").unwrap();
-        let e = column_drive(&p, "v", 1e-3).unwrap_err().to_string();
+        let e = column_drive(&p, "v", 1e-3, "the virtual bimorph", SCENARIO_HINT).unwrap_err().to_string();
         assert_eq!(e, format!("{}:3: column \"v\": 2000 V is beyond ±1000 V", p.display()));
         std::fs::write(&p, "t,v\n0,0\n0,1\n").unwrap();
         assert!(
-            column_drive(&p, "v", 1e-3).unwrap_err().to_string().ends_with(":3: time 0 does not increase")
+            column_drive(&p, "v", 1e-3, "the virtual bimorph", SCENARIO_HINT)
+                .unwrap_err()
+                .to_string()
+                .ends_with(":3: time 0 does not increase")
         );
         std::fs::write(&p, "1,2\n").unwrap();
-        assert!(column_drive(&p, "v", 1e-3).unwrap_err().to_string().contains(":1: no header row"));
+        assert!(
+            column_drive(&p, "v", 1e-3, "the virtual bimorph", SCENARIO_HINT)
+                .unwrap_err()
+                .to_string()
+                .contains(":1: no header row")
+        );
     }
 
     #[test]

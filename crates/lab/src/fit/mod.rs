@@ -59,15 +59,18 @@
 //! ([`Averaging::PeriodsAndTrend`]) and models it by a term of its own.
 
 mod error;
+pub mod family;
+pub mod linear;
 mod lm;
 mod options;
+pub mod oscillator;
 mod periodic;
 mod problem;
 mod refine;
 mod rls;
 
 pub use error::FitError;
-pub use lm::Stop;
+pub use lm::{Evaluation, Quadratic, Run, Stop, levenberg_marquardt, levenberg_marquardt_within};
 pub use options::{
     Averaging, DelaySearch, LoopSearch, MIN_SLOPE, OeOptions, Outer, Param, Samples, StructureSearch,
     Tolerances, invertible_for, operating_slope, slope_rel, upwards,
@@ -494,26 +497,35 @@ fn fit_once(
 
     // Stage C: Levenberg–Marquardt from the best few, in parallel.
     let free: Vec<Param> = free.into_iter().filter(|&p| prob.differentiable(p)).collect();
-    let runs: Vec<lm::Run> = cands
+    let runs: Vec<(Outer, lm::Run<Eval>)> = cands
         .par_iter()
         .take(opt.lm_starts.max(1))
         .filter_map(|&(_, start)| {
             let win = scoring.window(&start);
-            lm::levenberg_marquardt(start, &free, &opt.tolerances, |phi| prob.eval(phi, win, Some(&free)))
+            let at = |x: &[f64]| {
+                let mut phi = start;
+                for (&p, &v) in free.iter().zip(x) {
+                    phi.set(p, v);
+                }
+                phi
+            };
+            let x0: Vec<f64> = free.iter().map(|&p| start.get(p)).collect();
+            let run = lm::levenberg_marquardt(&x0, &opt.tolerances, |x| prob.eval(&at(x), win, Some(&free)))?;
+            Some((at(&run.x), run))
         })
         .collect();
-    evaluations += runs.iter().map(|r| r.evaluations).sum::<usize>();
+    evaluations += runs.iter().map(|r| r.1.evaluations).sum::<usize>();
     let mut runs = runs;
-    runs.sort_by(|a, b| a.eval.cost.total_cmp(&b.eval.cost));
+    runs.sort_by(|a, b| a.1.eval.cost.total_cmp(&b.1.eval.cost));
     let Some((floor, check_end)) = steady_check else {
-        let best = runs.into_iter().next().ok_or((FitError::NoStableModel, evaluations))?;
-        return Ok(done(&best.phi, best.eval, best.stop, best.iterations, evaluations));
+        let (phi, best) = runs.into_iter().next().ok_or((FitError::NoStableModel, evaluations))?;
+        return Ok(done(&phi, best.eval, best.stop, best.iterations, evaluations));
     };
     // The average period cannot show a model whose output is not periodic (a loop still
     // creeping, a slow pole): the best run whose free run on the fitted samples comes to what
     // its criterion and the noise predict, else the fit on the samples.
-    for run in runs {
-        let fit = done(&run.phi, run.eval, run.stop, run.iterations, evaluations);
+    for (phi, run) in runs {
+        let fit = done(&phi, run.eval, run.stop, run.iterations, evaluations);
         let expected = (fit.rms_fit.powi(2) + floor.powi(2)).sqrt();
         let steady = fit.model.simulate(&u[..check_end], ts).is_ok_and(|sim| {
             analysis::rms_diff(&sim[opt.skip..], &y[opt.skip..check_end]) <= STEADY_FACTOR * expected

@@ -67,6 +67,15 @@ pub(crate) struct Eval {
     pub jac: Option<(DMatrix<f64>, DVector<f64>)>,
 }
 
+impl super::lm::Evaluation for Eval {
+    fn cost(&self) -> f64 {
+        self.cost
+    }
+    fn normal(&self) -> Option<(&DMatrix<f64>, &DVector<f64>)> {
+        self.jac.as_ref().map(|(a, b)| (a, b))
+    }
+}
+
 fn sgn(x: f64) -> f64 {
     if x > 0.0 {
         1.0

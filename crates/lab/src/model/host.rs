@@ -186,6 +186,15 @@ pub enum ModelError {
     TooManyBranches(usize),
     /// A core error (parameters, frequencies).
     Core(boucwen_core::Error),
+    /// The free run leaves every finite value.
+    Diverges,
+    /// Too few samples for the model to run (its output filter's length).
+    TooFewSamples {
+        /// Samples given.
+        have: usize,
+        /// Samples needed.
+        need: usize,
+    },
 }
 
 impl fmt::Display for ModelError {
@@ -196,6 +205,10 @@ impl fmt::Display for ModelError {
                 write!(f, "{m} harmonic branches: at most {MAX_BRANCHES} are supported")
             }
             ModelError::Core(e) => write!(f, "{e}"),
+            ModelError::Diverges => write!(f, "the model's free run diverges"),
+            ModelError::TooFewSamples { have, need } => {
+                write!(f, "too few samples to run the model: {have} given, at least {need} needed")
+            }
         }
     }
 }

@@ -42,9 +42,11 @@
 use super::poles;
 use super::{HostModel, MAX_DELAY, ModelError, delayed};
 use boucwen_core::signal::{Oscillator, sin_cos};
+use serde::{Deserialize, Serialize};
 
 /// A first-order relaxation state of the creep term.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct Relaxation {
     /// Time constant (s).
     pub tau_s: f64,
@@ -53,7 +55,8 @@ pub struct Relaxation {
 }
 
 /// One power of the stiffening polynomial.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct Stiffening {
     /// The power `p ≥ 2`.
     pub power: u32,
@@ -62,7 +65,8 @@ pub struct Stiffening {
 }
 
 /// The terms around and inside a host model (see the module docs). The default carries none.
-#[derive(Clone, Debug, PartialEq, Default)]
+#[derive(Clone, Debug, PartialEq, Default, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
 pub struct Terms {
     /// The drive is clamped to `[lo, hi]` (V) before the model: an amplifier's rails.
     pub input_clamp: Option<[f64; 2]>,

@@ -414,6 +414,25 @@ pub fn finding_text(f: &Finding) -> String {
         }
         Evidence::InputDelay(e) => delay_text(e),
         Evidence::Distortion(e) => distortion_text(e),
+        Evidence::RestoringForce(e) => format!(
+            "hysteresis in the restoring force: the Bouc–Wen oscillator (m·y'' + c·y' + k·y + z = u, the loop z inside \
+             the structure) leaves {:.4} µm held out where the extended model with its terms (hysteresis at the drive) leaves {:.4} µm: \
+             {:.1}% lower (at least {:.0}% asked), {:.2} times the noise floor of {:.4} µm (at most {:.1} asked); m = {:.5}, c = {:.5}, k = {:.6e}, alpha = {:.6e}, beta*gamma = {:.5}, \
+             beta*delta = {:.5}; `identify --model oscillator` fits it and `--save` keeps it",
+            e.restoring_um,
+            e.at_drive_um,
+            100.0 * e.gain(),
+            100.0 * e.min_gain,
+            e.noise_ratio(),
+            e.noise_um,
+            e.max_noise_ratio,
+            e.params.m,
+            e.params.c,
+            e.params.k,
+            e.params.alpha,
+            e.params.beta_gamma,
+            e.params.beta_delta
+        ),
         Evidence::UnexplainedHarmonic { amp_um, share } => format!(
             "unexplained {} harmonic at {:.1} Hz: {amp_um:.3} µm, {:.0}% of the extended model's residual power; no \
              term removed it by enough to keep",
@@ -514,6 +533,12 @@ pub fn evidence_json(e: &Evidence) -> Value {
             "after": level_json(&d.after),
             "step": step_json(&d.step),
             "stiffening": d.stiffening.map(|(p, c, q)| json!({"power": p, "coeff": c, "q_ref_um": q})),
+        }),
+        Evidence::RestoringForce(e) => json!({
+            "type": "restoring_force",
+            "at_drive_um": e.at_drive_um, "restoring_um": e.restoring_um, "gain_pct": 100.0 * e.gain(),
+            "min_gain_pct": 100.0 * e.min_gain,
+            "noise_um": e.noise_um, "noise_ratio": e.noise_ratio(), "max_noise_ratio": e.max_noise_ratio, "params": e.params, "substeps": e.substeps,
         }),
         Evidence::UnexplainedHarmonic { amp_um, share } => {
             json!({"type": "unexplained_harmonic", "amp_um": amp_um, "share": share})

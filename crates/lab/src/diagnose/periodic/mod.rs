@@ -39,11 +39,12 @@
 pub mod data;
 pub mod findings;
 pub mod models;
+pub mod placement;
 pub mod terms;
 
 use super::checks::ModelCheck;
 use super::error::DiagnoseError;
-use super::evidence::{Finding, NotKept};
+use super::evidence::{Evidence, Finding, NotKept};
 use crate::model::terms::TermModel;
 use crate::rules::Rules;
 use crate::signal::distortion::{BlaLine, Level, Lines, Parity};
@@ -153,6 +154,9 @@ pub struct PeriodicDiagnosis {
     pub trials: Vec<TermTrial>,
     /// What was found, most important first.
     pub findings: Vec<Finding>,
+    /// The Bouc–Wen oscillator tried against the extended model, when the rules let it
+    /// ([`placement`]).
+    pub placement: Option<placement::Placement>,
     /// The output's noise floor (µm, from period to period, at least the sensor's steps').
     pub noise_um: f64,
     /// How it was measured: `period_to_period`, or `quantisation` (the sensor's steps).
@@ -177,9 +181,11 @@ impl PeriodicDiagnosis {
         self.compared.iter().chain(&self.with_terms)
     }
 
-    /// `100·(1 − after/before)` of the held-out RMS from the baseline to the extended model.
+    /// `100·(1 − after/before)` of the held-out RMS from the baseline to the extended model
+    /// (to the oscillator, when it was kept).
     pub fn gain_pct(&self) -> f64 {
-        let (b, m) = (self.baseline().rms_um, self.model().rms_um);
+        let kept = self.placement.as_ref().filter(|p| p.kept).map(|p| p.evidence.restoring_um);
+        let (b, m) = (self.baseline().rms_um, kept.unwrap_or(self.model().rms_um));
         if b > 0.0 { 100.0 * (1.0 - m / b) } else { 0.0 }
     }
 }
@@ -193,7 +199,16 @@ pub fn diagnose(records: &[Realisation<'_>], ts: f64, r: &Rules) -> Result<Perio
     let baseline_step = models::baseline(&compared)?;
     let baseline = &compared[baseline_step];
     let kept = terms::select(&data, baseline, noise_um, output_rms_um, ts, r)?;
-    let findings = findings::findings(&data, baseline, &kept, output_rms_um, ts, r);
+    let mut findings = findings::findings(&data, baseline, &kept, output_rms_um, ts, r);
+    let best = kept.steps.last().unwrap_or(baseline);
+    let placement = placement::restoring_force(&data, baseline, best, output_rms_um, noise_um, ts, r);
+    if let Some(p) = placement.as_ref().filter(|p| p.kept) {
+        // The distortion the terms took or left is the loop's, inside the structure.
+        findings.retain(|f| {
+            !matches!(f.evidence, Evidence::UnexplainedDistortion { .. } | Evidence::Distortion(_))
+        });
+        findings.insert(0, p.finding());
+    }
     Ok(PeriodicDiagnosis {
         ts,
         bla: data.bla(r),
@@ -210,6 +225,7 @@ pub fn diagnose(records: &[Realisation<'_>], ts: f64, r: &Rules) -> Result<Perio
         with_terms: kept.steps,
         trials: kept.trials,
         findings,
+        placement,
         noise_um,
         noise_method,
         output_rms_um,

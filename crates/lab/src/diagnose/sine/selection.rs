@@ -297,7 +297,11 @@ fn try_term(
                 (a, b) => a.or(b).map(|r| r.0),
             }
         }
-        Kind::OtherInput | Kind::InputDelay | Kind::OddDistortion | Kind::EvenDistortion => None,
+        Kind::OtherInput
+        | Kind::InputDelay
+        | Kind::OddDistortion
+        | Kind::EvenDistortion
+        | Kind::RestoringForce => None,
     }
 }
 

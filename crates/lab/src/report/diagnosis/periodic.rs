@@ -67,6 +67,11 @@ pub fn periodic_json(d: &PeriodicDiagnosis) -> Value {
         "findings": d.findings.iter().map(finding_json).collect::<Vec<_>>(),
         "extended": model_json(d.model()),
         "gain_pct": d.gain_pct(),
+        "placement": d.placement.as_ref().map(|p| json!({
+            "kept": p.kept,
+            "family": "oscillator",
+            "evidence": crate::report::diagnosis::evidence_json(&crate::diagnose::evidence::Evidence::RestoringForce(p.evidence)),
+        })),
         "trials": d.trials.iter().map(|t| json!({
             "round": t.round,
             "term": term_name(t.parity),
@@ -101,14 +106,42 @@ pub fn periodic_text(d: &PeriodicDiagnosis, source: &str, r: &Rules) -> String {
         }
     }
     let (b, m) = (d.baseline(), d.model());
-    let _ = writeln!(
-        s,
-        "\nextended model: {} (free run): held-out RMS {:.4} µm; {:.4} µm before: {:.1}% lower",
-        m.model.name(),
-        m.rms_um,
-        b.rms_um,
-        d.gain_pct()
-    );
+    if let Some(p) = &d.placement {
+        let e = &p.evidence;
+        let _ = writeln!(
+            s,
+            "\nwhere the hysteresis sits: the Bouc–Wen oscillator (in the restoring force) {:.4} µm held out, the extended \
+             model (at the drive) {:.4} µm: {:.1}% lower, {:.1} times the noise floor ({}: the rules ask {:.0}% and at most {:.1} times)",
+            e.restoring_um,
+            e.at_drive_um,
+            100.0 * e.gain(),
+            e.noise_ratio(),
+            if p.kept { "kept" } else { "not kept" },
+            100.0 * e.min_gain,
+            e.max_noise_ratio
+        );
+    }
+    match d.placement.as_ref().filter(|p| p.kept) {
+        Some(p) => {
+            let _ = writeln!(
+                s,
+                "\nmodel: oscillator (free run): held-out RMS {:.4} µm; {:.4} µm before (the extended model): {:.1}% lower",
+                p.evidence.restoring_um,
+                b.rms_um,
+                d.gain_pct()
+            );
+        }
+        None => {
+            let _ = writeln!(
+                s,
+                "\nextended model: {} (free run): held-out RMS {:.4} µm; {:.4} µm before: {:.1}% lower",
+                m.model.name(),
+                m.rms_um,
+                b.rms_um,
+                d.gain_pct()
+            );
+        }
+    }
     s
 }
 

@@ -17,8 +17,11 @@ use crate::model::{HostModel, ModelSpec};
 use crate::record::Record;
 use crate::rules::Rules;
 use crate::signal::analysis;
-use crate::signal::steady::{self, Drive, DriveKind};
+use crate::signal::steady::{self, Drive, DriveKind, Window};
 use std::fmt;
+
+pub mod compare;
+pub mod families;
 
 /// The model to fit.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -184,17 +187,40 @@ fn split_at(drive: &Drive, start: usize, len: usize, fit_fraction: f64) -> usize
     start + fitted.clamp(1, len - 1)
 }
 
-/// Identifies a record (see the module docs); `given` is `--window` in samples.
-pub fn identify(
+/// A record made ready for a fit: its steady window, the drive there, and where the fitted
+/// part ends. Every family is fitted and held out on the same samples.
+#[derive(Clone, Debug)]
+pub struct Prepared {
+    /// The window in the record.
+    pub window: Window,
+    /// The drive in the window.
+    pub drive: Drive,
+    /// The window (s).
+    pub window_s: [f64; 2],
+    /// First fitted sample, relative to `window.drive_on`.
+    pub start: usize,
+    /// First held-out sample, relative to `window.drive_on`.
+    pub split: usize,
+}
+
+impl Prepared {
+    /// The drive and output from the start of the steady drive to the window's end.
+    pub fn signals<'a>(&self, r: &'a Record) -> (&'a [f64], &'a [f64]) {
+        (&r.u[self.window.drive_on..self.window.end], &r.y[self.window.drive_on..self.window.end])
+    }
+}
+
+/// Finds the steady window and the split of `fit_fraction` (see the module docs); `given`
+/// is `--window` in samples.
+pub fn prepare(
     r: &Record,
     given: Option<(usize, usize)>,
-    o: &Options,
+    fit_fraction: f64,
     rules: &Rules,
-) -> Result<Identified, IdentifyError> {
-    if !(o.fit_fraction.is_finite() && (0.1..=0.9).contains(&o.fit_fraction)) {
+) -> Result<Prepared, IdentifyError> {
+    if !(fit_fraction.is_finite() && (0.1..=0.9).contains(&fit_fraction)) {
         return Err(IdentifyError::Option(format!(
-            "--fit-fraction {}: must be between 0.1 and 0.9",
-            o.fit_fraction
+            "--fit-fraction {fit_fraction}: must be between 0.1 and 0.9"
         )));
     }
     let ts = r.ts;
@@ -208,9 +234,21 @@ pub fn identify(
     if w.end - w.start < need {
         return Err(IdentifyError::TooFewSamples { samples: w.end - w.start, need, window_s });
     }
-    let (u, y) = (&r.u[w.drive_on..w.end], &r.y[w.drive_on..w.end]);
     let start = w.start - w.drive_on;
-    let split = split_at(&drive, start, w.end - w.start, o.fit_fraction);
+    let split = split_at(&drive, start, w.end - w.start, fit_fraction);
+    Ok(Prepared { window: w, drive, window_s, start, split })
+}
+
+/// Identifies a record (see the module docs); `given` is `--window` in samples.
+pub fn identify(
+    r: &Record,
+    given: Option<(usize, usize)>,
+    o: &Options,
+    rules: &Rules,
+) -> Result<Identified, IdentifyError> {
+    let ts = r.ts;
+    let Prepared { window: w, drive, window_s, start, split } = prepare(r, given, o.fit_fraction, rules)?;
+    let (u, y) = (&r.u[w.drive_on..w.end], &r.y[w.drive_on..w.end]);
     let drive_hz = match o.drive_hz {
         Some(f) if f.is_finite() && f > 0.0 && f < 0.5 / ts => f,
         Some(f) => {
