@@ -157,9 +157,7 @@ pub fn levenberg_marquardt_within<E: Evaluation>(
     let mut nu = 2.0;
     let mut scale = DVector::<f64>::zeros(nf);
     for iter in 0..tol.max_iter {
-        let Some((jtj, g)) = cur.normal().map(|(a, b)| (a.clone(), b.clone())) else {
-            return None;
-        };
+        let (jtj, g) = cur.normal().map(|(a, b)| (a.clone(), b.clone()))?;
         if cur.cost() <= 0.0 || nf == 0 {
             return Some(Run { x, eval: cur, stop: Stop::Gradient, iterations: iter, evaluations });
         }

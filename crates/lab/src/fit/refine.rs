@@ -3,15 +3,13 @@
 //! The host model is fitted first, by output error; a term is then added and the whole
 //! model (structure, loop, gains, offset and drift, branches, and the term's parameters) is
 //! refined jointly by Levenberg–Marquardt on the free-run error over the fit's criterion
-//! window, from the host's optimum, by the fit's Levenberg–Marquardt. The Jacobian is taken
-//! by finite differences (a dozen parameters, a few thousand samples: each evaluation is one
-//! free run).
+//! window, from the host's optimum. The Jacobian is taken by finite differences (a dozen
+//! parameters, a few thousand samples: each evaluation is one free run).
 
 use super::FitError;
-use super::Tolerances;
-use super::lm::Quadratic;
 use crate::model::terms::{Param, TermModel};
 use crate::signal::analysis;
+use nalgebra::{DMatrix, DVector};
 
 /// The criterion of a refinement: the model runs from sample 0 over `u[..end]` and is
 /// scored on `[skip, end)`.
@@ -36,12 +34,11 @@ fn residual(m: &TermModel, free: &[Param], u: &[f64], y: &[f64], ts: f64, c: &Cr
     r.iter().all(|v| v.is_finite() && v.abs() < crate::record::Y_LIMIT_UM).then_some(r)
 }
 
-/// Refines `start` by Levenberg–Marquardt ([`super::levenberg_marquardt_within`]) over the
-/// parameters `free` on the free-run error over the criterion (see the module docs), each
-/// step projected onto the parameters' bounds (a delay in `[0, 3]` samples, creep gains at
-/// least 0, creep time constants in their range). The Jacobian is taken by forward finite
-/// differences (backward where the forward point is not admissible). Returns the refined
-/// model and its RMS over the criterion, or `None` if `start` itself cannot be evaluated.
+/// Refines `start` by Levenberg–Marquardt over the parameters `free` on the free-run error
+/// over the criterion (see the module docs), each step projected onto the parameters' bounds
+/// (a delay in `[0, 3]` samples, creep gains at least 0, creep time constants in their
+/// range). Returns the refined model and its RMS over the criterion, or `None` if `start`
+/// itself cannot be evaluated.
 pub fn refine(
     start: &TermModel,
     free: &[Param],
@@ -54,57 +51,74 @@ pub fn refine(
     if c.end <= c.skip + free.len() {
         return None;
     }
-    let at = |x: &[f64]| {
-        let mut m = start.clone();
-        for (&p, &v) in free.iter().zip(x) {
-            m.set(p, v);
-        }
-        m
-    };
+    let mut model = start.clone();
+    let mut r = residual(&model, free, u, y, ts, &c)?;
+    let mut cost: f64 = r.iter().map(|v| v * v).sum();
+    let np = free.len();
     // Finite-difference steps: relative to each parameter, with a floor of its own scale.
     let scale: Vec<f64> = free.iter().map(|&p| step_scale(start, p)).collect();
-    let project = |x: &mut [f64]| {
-        let mut m = at(x);
-        m.project();
-        for (v, &p) in x.iter_mut().zip(free) {
-            *v = m.get(p);
+    let mut mu = 1e-3;
+    for _ in 0..c.max_iter {
+        let m = r.len();
+        let mut jac = DMatrix::<f64>::zeros(m, np);
+        for (col, &p) in free.iter().enumerate() {
+            let v = model.get(p);
+            let h = 1e-6 * (v.abs() + scale[col]);
+            let mut q = model.clone();
+            q.set(p, v + h);
+            let (rq, hs) = match residual(&q, free, u, y, ts, &c) {
+                Some(rq) => (rq, h),
+                None => {
+                    q.set(p, v - h);
+                    (residual(&q, free, u, y, ts, &c)?, -h)
+                }
+            };
+            for i in 0..m {
+                // d(y − ŷ)/dp.
+                jac[(i, col)] = (rq[i] - r[i]) / hs;
+            }
         }
-    };
-    let eval = |x: &[f64]| -> Option<Quadratic> {
-        let model = at(x);
-        let r = residual(&model, free, u, y, ts, &c)?;
-        let cols: Vec<Vec<f64>> = free
-            .iter()
-            .enumerate()
-            .map(|(col, &p)| {
-                let v = model.get(p);
-                let h = FD_STEP * (v.abs() + scale[col]);
-                let mut q = model.clone();
-                q.set(p, v + h);
-                let (rq, hs) = match residual(&q, free, u, y, ts, &c) {
-                    Some(rq) => (rq, h),
-                    None => {
-                        q.set(p, v - h);
-                        (residual(&q, free, u, y, ts, &c)?, -h)
+        let rv = DVector::from_column_slice(&r);
+        let jtj = jac.transpose() * &jac;
+        let g = jac.transpose() * rv;
+        let mut improved = false;
+        while mu < 1e12 {
+            let mut a = jtj.clone();
+            for i in 0..np {
+                a[(i, i)] += mu * (jtj[(i, i)] + 1e-12);
+            }
+            let Some(ch) = a.cholesky() else {
+                mu *= 4.0;
+                continue;
+            };
+            let delta = ch.solve(&(-&g));
+            let mut cand = model.clone();
+            for (i, &p) in free.iter().enumerate() {
+                cand.set(p, model.get(p) + delta[i]);
+            }
+            cand.project();
+            match residual(&cand, free, u, y, ts, &c) {
+                Some(rc) => {
+                    let cc: f64 = rc.iter().map(|v| v * v).sum();
+                    if cc < cost {
+                        let rel = (cost - cc) / cost.max(1e-300);
+                        (model, r, cost) = (cand, rc, cc);
+                        mu = (mu / 3.0).max(1e-12);
+                        improved = rel > 1e-9;
+                        break;
                     }
-                };
-                // ∂r/∂p of the residual r = y − ŷ.
-                Some(rq.iter().zip(&r).map(|(a, b)| (a - b) / hs).collect())
-            })
-            .collect::<Option<_>>()?;
-        Some(Quadratic::from_columns(&r, &cols))
-    };
-    let x0: Vec<f64> = free.iter().map(|&p| start.get(p)).collect();
-    let tol = Tolerances { cost: REFINE_COST, max_iter: c.max_iter, ..Tolerances::default() };
-    let run = super::levenberg_marquardt_within(&x0, &tol, project, eval)?;
-    let samples = (c.end - c.skip) as f64;
-    Some((at(&run.x), (run.eval.cost / samples).sqrt()))
+                    mu *= 4.0;
+                }
+                None => mu *= 4.0,
+            }
+        }
+        if !improved {
+            break;
+        }
+    }
+    let rms = (cost / r.len() as f64).sqrt();
+    Some((model, rms))
 }
-
-/// Relative finite-difference step of a parameter (of its value plus its scale).
-const FD_STEP: f64 = 1e-6;
-/// A refinement stops when an accepted step lowers the cost by less than this fraction.
-const REFINE_COST: f64 = 1e-9;
 
 /// The floor of the finite-difference step of a parameter: its scale in the start model.
 fn step_scale(m: &TermModel, p: Param) -> f64 {
