@@ -36,8 +36,10 @@
 
 use crate::design::closed_loop::{self, CompensationSettings, ExperimentError, Peer, Trace};
 use crate::design::{self, PROBE_REL, PROBE_SECONDS, ResponseSource};
+use crate::diagnose::checks;
 use crate::fit::{self, Averaging, DelaySearch, FitError, LoopSearch, OeOptions, Samples, StructureSearch};
 use crate::model::{HostModel, LoopShape, ModelSpec};
+use crate::rules::Rules;
 use crate::signal::analysis;
 use boucwen_core::compensator::{HarmonicSpec, PhaseRule};
 use boucwen_sim::{Bimorph, Scenario, SimError};
@@ -178,24 +180,57 @@ pub fn structure_from(
         ..OeOptions::default()
     };
     let fit = fit::fit_oe(u, y, ts, u.len(), &ModelSpec::extended(1.0), &[], &opt).map_err(err)?;
-    let resonance_hz = crate::model::poles::resonance_hz(&fit.model.ext.ar, ts);
+    structure_with(fit.model.ext.ar, fit.model.delay, fit.rms_fit, u_loop, y_loop, loop_hz, loop_fit, ts)
+}
+
+/// The structure from sine records alone, when no broadband record is at hand: the linear
+/// part and delay fitted to the fundamentals' complex gains `points` ([`fit::response`]),
+/// then the loop shape from `(u_loop, y_loop)` at `loop_hz` as in [`structure_from`]. Its
+/// `rms_fit_um` is the RMS error of the output's fundamental over the records.
+pub fn structure_from_sines(
+    points: &[fit::response::Fundamental],
+    u_loop: &[f64],
+    y_loop: &[f64],
+    loop_hz: f64,
+    loop_fit: usize,
+    ts: f64,
+) -> Result<Structure, SweepError> {
+    let r = fit::response::fit_response(points, ts).map_err(|e| SweepError::Fit(0.0, e))?;
+    structure_with(r.ar, r.delay, r.rms, u_loop, y_loop, loop_hz, loop_fit, ts)
+}
+
+/// The loop shape from `(u_loop, y_loop)` fitted on its first `loop_fit` samples with the
+/// linear part `ar` and the input delay `delay` fixed.
+#[allow(clippy::too_many_arguments)]
+fn structure_with(
+    ar: [f64; 2],
+    delay: f64,
+    rms_fit_um: f64,
+    u_loop: &[f64],
+    y_loop: &[f64],
+    loop_hz: f64,
+    loop_fit: usize,
+    ts: f64,
+) -> Result<Structure, SweepError> {
+    let resonance_hz = crate::model::poles::resonance_hz(&ar, ts);
     // The loop: a quasi-static sine at the drive amplitude, with that structure and delay.
     let loop_opt = OeOptions {
         samples: Samples::First(loop_fit),
         averaging: Averaging::Off,
-        structure: StructureSearch::Fixed(fit.model.ext.ar),
-        delay: DelaySearch::Fixed(fit.model.delay),
+        structure: StructureSearch::Fixed(ar),
+        delay: DelaySearch::Fixed(delay),
         ..OeOptions::default()
     };
     let loop_fit = fit::fit_oe(u_loop, y_loop, ts, loop_fit, &ModelSpec::extended(loop_hz), &[], &loop_opt)
         .map_err(|e| SweepError::Fit(loop_hz, e))?;
     let shape = loop_fit.model.shape().ok_or(SweepError::Fit(loop_hz, FitError::NoStableModel))?;
     let mut model = loop_fit.model;
-    model.ext.ar = fit.model.ext.ar;
-    Ok(Structure { model, shape, rms_fit_um: fit.rms_fit, resonance_hz })
+    model.ext.ar = ar;
+    Ok(Structure { model, shape, rms_fit_um, resonance_hz })
 }
 
-/// One frequency's results. `NaN` where a model was unstable in free run (`null` in JSON).
+/// One frequency's results. `NaN` where a model or a loop was unstable in free run (`null`
+/// in JSON, [`UNSTABLE`] in the tables and the CSV).
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct Row {
     /// Drive frequency (Hz).
@@ -232,29 +267,52 @@ pub struct Row {
     pub rmse_orc_um: f64,
 }
 
+/// What the tables and the CSV say in place of an error whose model or loop was not stable
+/// in free run (`NaN` in [`Row`], `null` in JSON).
+pub const UNSTABLE: &str = "unstable";
+
+/// An error (µm) for a table, to 4 decimals, or [`UNSTABLE`].
+pub fn cell(x: f64) -> String {
+    if x.is_finite() { format!("{x:.4}") } else { UNSTABLE.into() }
+}
+
 /// The CSV header: the paper's five columns first.
 pub const CSV_HEADER: &str = "freq_hz,rms_extended_um,rms_enhanced_um,rmse_uf_um,rmse_proposed_um,\
 rmse_open_um,rmse_pi_um,rmse_orc_um,harmonic_order,cancel_order,cancel_order_oe,alpha_um,rms_extended_oe_um,rms_enhanced_oe_um,rmse_uf_oe_um,\
 rmse_proposed_oe_um";
 
 impl Row {
-    /// The row as CSV (same order as [`CSV_HEADER`]).
+    /// The row as CSV (same order as [`CSV_HEADER`]); an error that is `NaN` is written
+    /// [`UNSTABLE`].
     pub fn csv(&self) -> String {
-        let v = [self.rms_extended_um, self.rms_enhanced_um, self.rmse_uf_um, self.rmse_proposed_um];
-        let w =
-            [self.rms_extended_oe_um, self.rms_enhanced_oe_um, self.rmse_uf_oe_um, self.rmse_proposed_oe_um];
-        let peers = [self.rmse_open_um, self.rmse_pi_um, self.rmse_orc_um];
-        let f = |x: f64| if x.is_finite() { format!("{x:.6}") } else { "nan".into() };
+        self.csv_with(UNSTABLE)
+    }
+
+    /// The row as CSV with the tracking columns, where they are `NaN`, written `missing`
+    /// (`nan` where no tracking was run, as in a sweep of measured records); the models'
+    /// errors that are `NaN` are written [`UNSTABLE`].
+    pub fn csv_with(&self, missing: &str) -> String {
+        let f = |x: f64| if x.is_finite() { format!("{x:.6}") } else { UNSTABLE.into() };
+        let t = |x: f64| if x.is_finite() { format!("{x:.6}") } else { missing.into() };
+        let v =
+            [f(self.rms_extended_um), f(self.rms_enhanced_um), t(self.rmse_uf_um), t(self.rmse_proposed_um)];
+        let w = [
+            f(self.rms_extended_oe_um),
+            f(self.rms_enhanced_oe_um),
+            t(self.rmse_uf_oe_um),
+            t(self.rmse_proposed_oe_um),
+        ];
+        let peers = [self.rmse_open_um, self.rmse_pi_um, self.rmse_orc_um].map(t);
         format!(
             "{},{},{},{},{},{},{:.6},{}",
             self.freq_hz,
-            v.map(f).join(","),
-            peers.map(f).join(","),
+            v.join(","),
+            peers.join(","),
             self.harmonic_order,
             self.cancel_order,
             self.cancel_order_oe,
             self.alpha_um,
-            w.map(f).join(",")
+            w.join(",")
         )
     }
 }
@@ -475,10 +533,16 @@ pub(crate) fn identify_at(
         };
         if on_fit(&cand)? < on_fit(&ext_rls)? { cand } else { ext_rls.clone() }
     };
+    // A model whose free run is not stable (a pole outside the unit circle, a run out of the
+    // physical range or away from the record's) gets no error (`NaN`, printed `unstable`):
+    // the number it would give measures how fast it diverges, not how well it models.
+    let checks = Rules::default().checks;
     let held_out = |m: &HostModel| -> Result<(f64, Vec<f64>), FitError> {
         let sim = m.simulate(u, ts)?;
+        let unstable = checks::instability(&m.ext.ar, &sim, ts).is_some()
+            || checks::runaway(&sim[fit_end..], &y[fit_end..], ts, &checks).is_some();
         let r = analysis::rms_diff(&sim[fit_end..], &y[fit_end..]);
-        Ok((if r.is_finite() { r } else { f64::NAN }, sim))
+        Ok((if r.is_finite() && !unstable { r } else { f64::NAN }, sim))
     };
     let (rms_ext_rls, _) = held_out(&ext_rls)?;
     let (rms_enh_rls, _) = held_out(&enh_rls)?;
@@ -789,5 +853,17 @@ mod tests {
         assert_eq!(sorted, csv);
         assert!(j["rms_extended_um"].is_null());
         assert_eq!(j["harmonic_order"], 3);
+        // An unstable model is said to be one, in the CSV and the tables, not printed as a
+        // number; tracking that was not run stays `nan` in a measured sweep's CSV.
+        let cells = |line: String| -> Vec<String> { line.split(',').map(str::to_string).collect() };
+        let c = cells(row.csv());
+        assert_eq!(c[1], UNSTABLE);
+        assert_eq!(c[2], "0.200000");
+        assert_eq!(cell(row.rms_extended_um), "unstable");
+        assert_eq!(cell(row.rms_enhanced_um), "0.2000");
+        let untracked = Row { rmse_uf_um: f64::NAN, ..row };
+        let c = cells(untracked.csv_with("nan"));
+        assert_eq!((c[1].as_str(), c[3].as_str()), (UNSTABLE, "nan"));
+        assert_eq!(c.len(), CSV_HEADER.split(',').count());
     }
 }

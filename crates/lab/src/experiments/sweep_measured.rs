@@ -6,7 +6,9 @@
 //! - **one broadband record** (a multisine or other aperiodic drive of small amplitude, like
 //!   the simulated sweep's structure record, see [`sweep::structure_records`]): the
 //!   structure and the delay, fitted as the simulated sweep fits them
-//!   ([`sweep::structure_from`]);
+//!   ([`sweep::structure_from`]); without one, the structure and the delay are fitted to the
+//!   sines' fundamentals ([`sweep::structure_from_sines`], at least
+//!   [`MIN_FREQUENCIES`] frequencies, the loop record's included), and the summary says so;
 //! - the **loop shape** comes from the lowest-frequency sine: if it is at most
 //!   [`LOOP_MAX_HZ`] it is the quasi-static loop record (fitted whole, as the simulated
 //!   sweep's [`sweep::LOOP_HZ`] record, and not a row); otherwise the loop is fitted on the
@@ -26,7 +28,8 @@
 //! A file that cannot be read, is not a sine or a broadband record, is too short or repeats a
 //! frequency is skipped with a line saying why; the frequencies run on all cores.
 
-use crate::experiments::sweep::{self, CSV_HEADER, HarmonicChoice, Row, Structure, SweepError};
+use crate::experiments::sweep::{self, CSV_HEADER, HarmonicChoice, Row, Structure, SweepError, cell};
+use crate::fit::response::{Fundamental, MIN_FREQUENCIES};
 use crate::record::Record;
 use crate::rules::Rules;
 use crate::signal::analysis;
@@ -93,7 +96,7 @@ pub struct MeasuredRow {
 pub struct MeasuredSweep {
     /// The structure and loop shape.
     pub structure: Structure,
-    /// The broadband record the structure comes from.
+    /// Where the structure comes from: the broadband record, or the sines' fundamentals.
     pub structure_source: String,
     /// The record the loop shape comes from, and whether it is also a row.
     pub loop_source: (String, bool),
@@ -119,9 +122,10 @@ pub enum MeasuredError {
     },
     /// The directory holds no files.
     Empty(String),
-    /// No broadband record for the structure.
+    /// No broadband record for the structure, and too few sine frequencies to fit it from
+    /// their fundamentals.
     NoStructure {
-        /// Sine records found.
+        /// Sine frequencies found (the loop record's included).
         sines: usize,
         /// Files skipped.
         skipped: Vec<Skipped>,
@@ -153,7 +157,8 @@ impl fmt::Display for MeasuredError {
             MeasuredError::NoStructure { sines, skipped } => write!(
                 f,
                 "no broadband record (a multisine of small amplitude) for the actuator's structure among \
-                 the records ({sines} sine records){}",
+                 the records, and sines at {sines} frequencies: the structure from sines alone needs \
+                 {MIN_FREQUENCIES}{}",
                 first_skipped(skipped)
             ),
             MeasuredError::NoSine { loop_only: Some(name), skipped } => write!(
@@ -281,6 +286,16 @@ fn classify(input: MeasuredInput) -> Result<Classified, Skipped> {
     Ok(Classified { name, ts: r.ts, role })
 }
 
+/// The fundamentals of a sine record `(u, y)` at `f`, over whole periods after its first
+/// quarter (where a lightly damped structure is still settling from rest).
+fn fundamental(u: &[f64], y: &[f64], f: f64, ts: f64) -> Option<Fundamental> {
+    let n = u.len().min(y.len());
+    let (u, y) = (&u[n / 4..n], &y[n / 4..n]);
+    let fu = analysis::harmonics(u, f, ts, 1).first().copied()?;
+    let fy = analysis::harmonics(y, f, ts, 1).first().copied()?;
+    Some(Fundamental { freq_hz: f, u: (fu.amp, fu.phase), y: (fy.amp, fy.phase) })
+}
+
 /// The phase lag (degrees) of `y`'s fundamental behind `u`'s, and the loop's area over
 /// `π·U1·Y1`, over whole periods of `f`; with the fundamentals' amplitudes.
 fn loop_measures(u: &[f64], y: &[f64], f: f64, ts: f64) -> (f64, f64, f64, f64) {
@@ -331,14 +346,14 @@ pub fn run(inputs: Vec<MeasuredInput>) -> Result<MeasuredSweep, MeasuredError> {
         }
     }
     let mut broadband = broadband.into_iter();
-    let Some((structure_source, u_s, y_s)) = broadband.next() else {
-        return Err(MeasuredError::NoStructure { sines: sines.len(), skipped });
-    };
-    for (name, ..) in broadband {
-        skipped.push(Skipped {
-            name,
-            why: format!("another broadband record: the structure is {structure_source}'s"),
-        });
+    let structure_record = broadband.next();
+    if let Some((source, ..)) = &structure_record {
+        for (name, ..) in broadband {
+            skipped.push(Skipped {
+                name,
+                why: format!("another broadband record: the structure is {source}'s"),
+            });
+        }
     }
     sines.sort_by(|a, b| a.1.total_cmp(&b.1).then_with(|| a.0.cmp(&b.0)));
     let mut unique: Vec<(String, f64, Vec<f64>, Vec<f64>)> = vec![];
@@ -377,8 +392,31 @@ pub fn run(inputs: Vec<MeasuredInput>) -> Result<MeasuredSweep, MeasuredError> {
         return Err(MeasuredError::NoSine { loop_only: quasi_static.then_some(loop_name), skipped });
     }
     let loop_is_row = unique.iter().any(|r| r.0 == loop_name);
-    let structure = sweep::structure_from(&u_s, &y_s, &u_l, &y_l, f_loop, loop_fit, ts)
-        .map_err(|e| MeasuredError::Structure(structure_source.clone(), e))?;
+    let (structure_source, structure) = match structure_record {
+        Some((source, u_s, y_s)) => {
+            let st = sweep::structure_from(&u_s, &y_s, &u_l, &y_l, f_loop, loop_fit, ts)
+                .map_err(|e| MeasuredError::Structure(source.clone(), e))?;
+            (source, st)
+        }
+        None => {
+            // No broadband record: the structure from the sines' fundamentals, each on the
+            // part of its record that is fitted (the loop record's, the rows' first halves).
+            let mut records: Vec<(&[f64], &[f64], f64)> = vec![];
+            if !loop_is_row {
+                records.push((&u_l[..loop_fit], &y_l[..loop_fit], f_loop));
+            }
+            records.extend(unique.iter().map(|(_, f, u, y)| (&u[..u.len() / 2], &y[..y.len() / 2], *f)));
+            let points: Vec<Fundamental> =
+                records.iter().filter_map(|&(u, y, f)| fundamental(u, y, f, ts)).collect();
+            if points.len() < MIN_FREQUENCIES {
+                return Err(MeasuredError::NoStructure { sines: points.len(), skipped });
+            }
+            let source = format!("the fundamentals of {} sine records (no broadband record)", points.len());
+            let st = sweep::structure_from_sines(&points, &u_l, &y_l, f_loop, loop_fit, ts)
+                .map_err(|e| MeasuredError::Structure(source.clone(), e))?;
+            (source, st)
+        }
+    };
     let results: Vec<Result<MeasuredRow, Skipped>> = unique
         .par_iter()
         .map(|(name, f, u, y)| {
@@ -448,7 +486,7 @@ impl MeasuredSweep {
         let mut s = String::from(CSV_HEADER);
         s.push('\n');
         for r in &self.rows {
-            s.push_str(&r.row.csv());
+            s.push_str(&r.row.csv_with("nan"));
             s.push('\n');
         }
         s
@@ -514,13 +552,13 @@ impl MeasuredSweep {
             let w = &r.row;
             let _ = writeln!(
                 s,
-                "{:>9.3} {:>3} | {:>9.4} {:>9.4} | {:>9.4} {:>9.4} | {:>8.1} {:>7.3}  {}",
+                "{:>9.3} {:>3} | {:>9} {:>9} | {:>9} {:>9} | {:>8.1} {:>7.3}  {}",
                 w.freq_hz,
                 w.harmonic_order,
-                w.rms_extended_um,
-                w.rms_enhanced_um,
-                w.rms_extended_oe_um,
-                w.rms_enhanced_oe_um,
+                cell(w.rms_extended_um),
+                cell(w.rms_enhanced_um),
+                cell(w.rms_extended_oe_um),
+                cell(w.rms_enhanced_oe_um),
                 r.phase_lag_deg,
                 r.loop_width_rel,
                 r.source

@@ -67,6 +67,7 @@ pub mod oscillator;
 mod periodic;
 mod problem;
 mod refine;
+pub mod response;
 mod rls;
 
 pub use error::FitError;
