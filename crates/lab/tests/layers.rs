@@ -329,3 +329,15 @@ fn the_diagnosis_decides_by_the_rules_table_only() {
         inline.join("\n")
     );
 }
+
+#[test]
+fn the_link_has_no_import_cycle() {
+    // The board's crate, read the same way: the wire protocol (frames, messages and their
+    // parameters, the limits every value is checked against) below the board's state
+    // machine (its excitation, on-chip plant, analog front end and device), none of them
+    // importing a module that imports it.
+    let link = Path::new(env!("CARGO_MANIFEST_DIR")).join("..").join("link");
+    let g = graph(&sources(link.to_str().expect("a UTF-8 path")));
+    assert!(g.contains_key("crate::device") && g.contains_key("crate::message"), "{g:?}");
+    assert_eq!(cycle(&g), None, "an import cycle in boucwen-link");
+}

@@ -27,9 +27,11 @@
 //! (the bound computed from the safety parameters in force).
 
 use super::analog::FrontEnd;
-use super::device::{Device, limits};
+use super::device::Device;
 use super::frame::MAX_ENCODED;
+use super::limits;
 use super::message::*;
+use super::plant::PLANT_STEPS;
 use super::tests::{controller_params, plant_params};
 use super::{Decoder, Packet, encode};
 use boucwen_core::compensator::HarmonicSpec;
@@ -46,11 +48,6 @@ use std::vec::Vec;
 pub const DEFAULT_CASES: u32 = 300;
 /// Most frames one packet or one tick may make the board send.
 pub const MAX_FRAMES_OUT: usize = 2;
-
-std::thread_local! {
-    /// Steps of the on-chip plant (counted by `OnChipPlant::step` in tests).
-    pub(crate) static PLANT_STEPS: Cell<u64> = const { Cell::new(0) };
-}
 
 fn cases() -> u32 {
     std::env::var("BOUCWEN_FUZZ_CASES").ok().and_then(|v| v.parse().ok()).unwrap_or(DEFAULT_CASES)

@@ -2,9 +2,11 @@
 //! panic and never yield a wrong packet, and the board's state machine follows its table.
 
 use super::analog::NoFrontEnd;
-use super::device::{ClosedLoop, Controller, Device, OnChipPlant, Reference, TimerRequest, limits};
+use super::device::{ClosedLoop, Controller, Device, Reference, TimerRequest};
 use super::frame::{MAX_ENCODED, MAX_PAYLOAD};
+use super::limits;
 use super::message::*;
+use super::plant::OnChipPlant;
 use super::*;
 use boucwen_core::compensator::{HarmonicSpec, Saturation};
 use boucwen_core::controllers::OrcPlacement;

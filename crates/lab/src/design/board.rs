@@ -808,7 +808,7 @@ pub fn design_from_records(records: &[Record], opts: &DesignOptions) -> Result<D
         r.validate_for_fit(400).map_err(|e| BoardDesignError::Record(r.source.clone(), e.to_string()))?;
     }
     let period_us = ts * 1e6;
-    let (lo, hi) = boucwen_link::device::limits::SAMPLE_PERIOD_US;
+    let (lo, hi) = boucwen_link::limits::SAMPLE_PERIOD_US;
     if !((lo as f64..=hi as f64).contains(&period_us.round()) && (period_us - period_us.round()).abs() < 1e-3)
     {
         return Err(BoardDesignError::Record(

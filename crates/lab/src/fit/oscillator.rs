@@ -45,7 +45,8 @@ impl OscillatorOptions {
     /// samples, `ν = 1`, every sample scored, a first pass at 5 substeps.
     ///
     /// ```
-    /// use boucwen_lab::fit::oscillator::{InputReconstruction, OscillatorOptions};
+    /// use boucwen_lab::fit::oscillator::OscillatorOptions;
+    /// use boucwen_lab::model::oscillator::InputReconstruction;
     /// let opt = OscillatorOptions::benchmark(8192);
     /// assert_eq!(opt.input, InputReconstruction::Periodic { period: 8192 });
     /// ```
