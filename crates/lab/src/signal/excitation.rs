@@ -19,26 +19,24 @@
 //! assert!((u[17] - u[1017]).abs() < 1e-12);
 //! ```
 
+use rand_core::{RngCore, SeedableRng};
 use std::f64::consts::TAU;
 
-/// SplitMix64: a small seeded generator for phases and draws (the same seed gives the same
-/// sequence on every platform).
+/// Seeded draws for phases and the fixtures' scenarios: SplitMix64 from `rand_xoshiro`, the
+/// workspace's one generator crate (the simulator's noise is its xoshiro256++, seeded
+/// through this same SplitMix64). The same seed gives the same sequence on every platform.
 #[derive(Clone, Debug)]
-pub struct SplitMix64(u64);
+pub struct Draws(rand_xoshiro::SplitMix64);
 
-impl SplitMix64 {
-    /// A generator from `seed`.
+impl Draws {
+    /// A generator from `seed` (the state starts at `seed`).
     pub fn new(seed: u64) -> Self {
-        Self(seed)
+        Self(rand_xoshiro::SplitMix64::seed_from_u64(seed))
     }
 
     /// The next 64 bits.
     pub fn next_u64(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^ (z >> 31)
+        self.0.next_u64()
     }
 
     /// Uniform on `[lo, hi)`.
@@ -54,6 +52,11 @@ impl SplitMix64 {
     /// A uniform index in `0..n` (`n ≥ 1`).
     pub fn index(&mut self, n: usize) -> usize {
         (self.next_u64() % n.max(1) as u64) as usize
+    }
+
+    /// `+1` or `−1`, even odds.
+    pub fn sign(&mut self) -> f64 {
+        if self.next_u64() & 1 == 0 { 1.0 } else { -1.0 }
     }
 }
 
@@ -76,7 +79,7 @@ impl Multisine {
     /// amplitudes, uniform random phases; `seed` draws both (see the module docs). Lines at
     /// or above `N/2` are left out.
     pub fn odd_random_phase(period_samples: usize, first: u32, last: u32, group: usize, seed: u64) -> Self {
-        let mut g = SplitMix64::new(seed);
+        let mut g = Draws::new(seed);
         let first = first.max(1) | 1;
         let top = last.min((period_samples as u32).saturating_sub(1) / 2);
         let odd: Vec<u32> = (first..=top).filter(|k| k % 2 == 1).collect();
@@ -92,7 +95,7 @@ impl Multisine {
 
     /// The same lines and amplitudes with new random phases: another realisation.
     pub fn realisation(&self, seed: u64) -> Self {
-        let mut g = SplitMix64::new(seed);
+        let mut g = Draws::new(seed);
         Multisine { phases: self.lines.iter().map(|_| g.uniform(0.0, TAU)).collect(), ..self.clone() }
     }
 
@@ -142,6 +145,14 @@ pub fn triangle(amplitude: f64, period_samples: usize, n: usize) -> Vec<f64> {
 
 #[cfg(test)]
 mod tests {
+    #[test]
+    fn the_draws_are_splitmix64() {
+        // Vigna's splitmix64.c from state 0: the draws every fixture was generated with.
+        let mut d = Draws::new(0);
+        assert_eq!(d.next_u64(), 0xE220_A839_7B1D_CDAF);
+        assert_eq!(d.next_u64(), 0x6E78_9E6A_A1B9_65F4);
+    }
+
     use super::*;
     use crate::signal::analysis;
 
