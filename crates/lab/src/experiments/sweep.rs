@@ -155,22 +155,27 @@ pub fn structure_records(scenario: &Scenario, drive_amplitude: f64) -> Result<[I
 pub fn identify_structure(scenario: &Scenario, drive_amplitude: f64) -> Result<Structure, SweepError> {
     let [(u, y), (u_loop, y_loop)] = structure_records(scenario, drive_amplitude)?;
     let ts = scenario.sampling.ts_s;
-    structure_from(&u, &y, &u_loop, &y_loop, LOOP_HZ, u_loop.len(), ts)
+    structure_from(&u, &y, LoopRecord { u: &u_loop, y: &y_loop, hz: LOOP_HZ, fit: u_loop.len() }, ts)
+}
+
+/// The record the loop shape is fitted on: a sine `(u, y)` at `hz`, fitted on its first
+/// `fit` samples, starting with the drive.
+#[derive(Clone, Copy, Debug)]
+pub struct LoopRecord<'a> {
+    /// The drive (V).
+    pub u: &'a [f64],
+    /// The output (µm).
+    pub y: &'a [f64],
+    /// Its frequency (Hz).
+    pub hz: f64,
+    /// The samples fitted, from the start.
+    pub fit: usize,
 }
 
 /// The structure from a broadband record `(u, y)` (the extended model fitted by output error
-/// with a linear loop: its AR part and delay) and the loop shape from a sine record
-/// `(u_loop, y_loop)` at `loop_hz`, fitted on its first `loop_fit` samples with that
-/// structure and delay. Both records start with the drive.
-pub fn structure_from(
-    u: &[f64],
-    y: &[f64],
-    u_loop: &[f64],
-    y_loop: &[f64],
-    loop_hz: f64,
-    loop_fit: usize,
-    ts: f64,
-) -> Result<Structure, SweepError> {
+/// with a linear loop: its AR part and delay) and the loop shape from `lp`, fitted with that
+/// structure and delay. The broadband record starts with the drive.
+pub fn structure_from(u: &[f64], y: &[f64], lp: LoopRecord<'_>, ts: f64) -> Result<Structure, SweepError> {
     let err = |e| SweepError::Fit(0.0, e);
     let opt = OeOptions {
         samples: Samples::First(8000),
@@ -180,50 +185,42 @@ pub fn structure_from(
         ..OeOptions::default()
     };
     let fit = fit::fit_oe(u, y, ts, u.len(), &ModelSpec::extended(1.0), &[], &opt).map_err(err)?;
-    structure_with(fit.model.ext.ar, fit.model.delay, fit.rms_fit, u_loop, y_loop, loop_hz, loop_fit, ts)
+    structure_with(fit.model.ext.ar, fit.model.delay, fit.rms_fit, lp, ts)
 }
 
 /// The structure from sine records alone, when no broadband record is at hand: the linear
 /// part and delay fitted to the fundamentals' complex gains `points` ([`fit::response`]),
-/// then the loop shape from `(u_loop, y_loop)` at `loop_hz` as in [`structure_from`]. Its
-/// `rms_fit_um` is the RMS error of the output's fundamental over the records.
+/// then the loop shape from `lp` as in [`structure_from`]. Its `rms_fit_um` is the RMS
+/// error of the output's fundamental over the records.
 pub fn structure_from_sines(
     points: &[fit::response::Fundamental],
-    u_loop: &[f64],
-    y_loop: &[f64],
-    loop_hz: f64,
-    loop_fit: usize,
+    lp: LoopRecord<'_>,
     ts: f64,
 ) -> Result<Structure, SweepError> {
     let r = fit::response::fit_response(points, ts).map_err(|e| SweepError::Fit(0.0, e))?;
-    structure_with(r.ar, r.delay, r.rms, u_loop, y_loop, loop_hz, loop_fit, ts)
+    structure_with(r.ar, r.delay, r.rms, lp, ts)
 }
 
-/// The loop shape from `(u_loop, y_loop)` fitted on its first `loop_fit` samples with the
-/// linear part `ar` and the input delay `delay` fixed.
-#[allow(clippy::too_many_arguments)]
+/// The loop shape from `lp` with the linear part `ar` and the input delay `delay` fixed.
 fn structure_with(
     ar: [f64; 2],
     delay: f64,
     rms_fit_um: f64,
-    u_loop: &[f64],
-    y_loop: &[f64],
-    loop_hz: f64,
-    loop_fit: usize,
+    lp: LoopRecord<'_>,
     ts: f64,
 ) -> Result<Structure, SweepError> {
     let resonance_hz = crate::model::poles::resonance_hz(&ar, ts);
     // The loop: a quasi-static sine at the drive amplitude, with that structure and delay.
     let loop_opt = OeOptions {
-        samples: Samples::First(loop_fit),
+        samples: Samples::First(lp.fit),
         averaging: Averaging::Off,
         structure: StructureSearch::Fixed(ar),
         delay: DelaySearch::Fixed(delay),
         ..OeOptions::default()
     };
-    let loop_fit = fit::fit_oe(u_loop, y_loop, ts, loop_fit, &ModelSpec::extended(loop_hz), &[], &loop_opt)
-        .map_err(|e| SweepError::Fit(loop_hz, e))?;
-    let shape = loop_fit.model.shape().ok_or(SweepError::Fit(loop_hz, FitError::NoStableModel))?;
+    let loop_fit = fit::fit_oe(lp.u, lp.y, ts, lp.fit, &ModelSpec::extended(lp.hz), &[], &loop_opt)
+        .map_err(|e| SweepError::Fit(lp.hz, e))?;
+    let shape = loop_fit.model.shape().ok_or(SweepError::Fit(lp.hz, FitError::NoStableModel))?;
     let mut model = loop_fit.model;
     model.ext.ar = ar;
     Ok(Structure { model, shape, rms_fit_um, resonance_hz })

@@ -392,9 +392,10 @@ pub fn run(inputs: Vec<MeasuredInput>) -> Result<MeasuredSweep, MeasuredError> {
         return Err(MeasuredError::NoSine { loop_only: quasi_static.then_some(loop_name), skipped });
     }
     let loop_is_row = unique.iter().any(|r| r.0 == loop_name);
+    let lp = sweep::LoopRecord { u: &u_l, y: &y_l, hz: f_loop, fit: loop_fit };
     let (structure_source, structure) = match structure_record {
         Some((source, u_s, y_s)) => {
-            let st = sweep::structure_from(&u_s, &y_s, &u_l, &y_l, f_loop, loop_fit, ts)
+            let st = sweep::structure_from(&u_s, &y_s, lp, ts)
                 .map_err(|e| MeasuredError::Structure(source.clone(), e))?;
             (source, st)
         }
@@ -412,7 +413,7 @@ pub fn run(inputs: Vec<MeasuredInput>) -> Result<MeasuredSweep, MeasuredError> {
                 return Err(MeasuredError::NoStructure { sines: points.len(), skipped });
             }
             let source = format!("the fundamentals of {} sine records (no broadband record)", points.len());
-            let st = sweep::structure_from_sines(&points, &u_l, &y_l, f_loop, loop_fit, ts)
+            let st = sweep::structure_from_sines(&points, lp, ts)
                 .map_err(|e| MeasuredError::Structure(source.clone(), e))?;
             (source, st)
         }
