@@ -52,7 +52,7 @@
 //! Its fit by output error is [`crate::fit::oscillator`].
 
 use super::ModelError;
-use boucwen_sim::oscillator::{FIR_TAPS, decimate_chain, interpolate_periodic};
+use boucwen_sim::oscillator::{FIR_TAPS, corrector, decimate_chain, interpolate_periodic};
 
 use serde::{Deserialize, Serialize};
 
@@ -337,30 +337,14 @@ pub(crate) fn run(
         s.push(0.0);
     }
     let hh = 0.5 * h;
+    // The Jacobian's constant row, for the sensitivities.
     let j11 = 1.0 + hh * (c + k * hh) / m;
     let j12 = hh / m;
     for &u1 in &u[1..] {
-        let mut v1 = v + h * acc;
-        let mut z1 = z + h * g;
-        let mut iter = 0;
-        loop {
-            let y1 = y + hh * (v + v1);
-            let a1 = (u1 - c * v1 - k * y1 - z1) / m;
-            let (g1, gv1, gz1, _) = rate(v1, z1);
-            let r1 = v1 - v - hh * (acc + a1);
-            let r2 = z1 - z - hh * (g + g1);
-            let (j21, j22) = (-hh * gv1, 1.0 - hh * gz1);
-            let det = j11 * j22 - j12 * j21;
-            let dv = (r1 * j22 - j12 * r2) / det;
-            let dz = (j11 * r2 - j21 * r1) / det;
-            v1 -= dv;
-            z1 -= dz;
-            iter += 1;
-            let small = dv.abs() <= 1e-13 * (v1.abs() + 1e-12) && dz.abs() <= 1e-13 * (z1.abs() + 1e-9);
-            if small || iter >= 30 || !(dv.is_finite() && dz.is_finite()) {
-                break;
-            }
-        }
+        let (v1, z1) = corrector([m, c, k], h, [y, v, z, acc, g], u1, |v, z| {
+            let (g, gv, gz, _) = rate(v, z);
+            (g, gv, gz)
+        });
         let y1 = y + hh * (v + v1);
         let a1 = (u1 - c * v1 - k * y1 - z1) / m;
         let (g1, gv1, gz1, gt1) = rate(v1, z1);
