@@ -4,7 +4,7 @@
 //! default 40, and `--seed S`, default 1000, the first seed; `--verbose` prints every case;
 //! `--dump DIR` writes every record there as `EFFECT-SEED.csv`, a multisine's realisations
 //! as `EFFECT-SEED-rN.csv`, for `boucwen diagnose`).
-//! For every effect of [`EFFECTS`] it draws `N` cases ([`boucwen_lab::hidden::Case`],
+//! For every effect of [`EFFECTS`] it draws `N` cases ([`boucwen_lab::fixtures::hidden::Case`],
 //! seeds `S..S+N`), records each on the virtual bimorph and diagnoses it with the default
 //! thresholds. A diagnosis is right when:
 //! - a hidden harmonic or drift: the first finding names it (kind, order, frequency within
@@ -16,7 +16,7 @@
 //! unless a case cannot be drawn or recorded.
 //!
 //! Then (`--kinds new` runs only these, `--kinds old` only the ones above) the kinds of
-//! [`boucwen_lab::effects`], `N` seeds each from `S`: sine records with saturation of the
+//! [`boucwen_lab::fixtures::effects`], `N` seeds each from `S`: sine records with saturation of the
 //! drive or of the output, creep, an input delay, a 5th harmonic with drift and the sensor's
 //! range with a 3rd harmonic, right when every hidden effect is named (kind; order for a
 //! harmonic) and the first finding is one of them; periodic records (a multisine in two
@@ -24,11 +24,14 @@
 //! finding names its parity, and clean, right when there is no finding. `--only PART` runs
 //! only the new kinds whose name contains `PART` (e.g. `--only triangle`).
 
-use boucwen_lab::diagnose::{self, Diagnosis, Kind, Thresholds};
-use boucwen_lab::effects::{Nonlinearity, PeriodicCase, PeriodicDrive, SineCase, SineEffect, Truth};
-use boucwen_lab::hidden::{Case, Effect};
-use boucwen_lab::periodic::Realisation;
+use boucwen_lab::diagnose::periodic::Realisation;
+use boucwen_lab::diagnose::{self, Diagnosis, Kind};
+use boucwen_lab::fixtures::effects::{
+    Nonlinearity, PeriodicCase, PeriodicDrive, SineCase, SineEffect, Truth,
+};
+use boucwen_lab::fixtures::hidden::{Case, Effect};
 use boucwen_lab::record::Record;
+use boucwen_lab::rules::Rules;
 use rayon::prelude::*;
 use std::time::Instant;
 
@@ -80,7 +83,7 @@ fn judge(case: &Case, d: &Diagnosis) -> (bool, String) {
 /// output's fundamental.
 fn carried(case: &Case, d: &Diagnosis) -> f64 {
     let out_rms = d.output_amplitude_um / std::f64::consts::SQRT_2;
-    let hidden = |t: &&diagnose::Trial| match case.effect {
+    let hidden = |t: &&diagnose::evidence::Trial| match case.effect {
         Effect::Clean => true,
         Effect::OddHarmonic(n) | Effect::EvenHarmonic(n) => t.round == 0 && t.candidate.order == Some(n),
         Effect::Drift => t.round == 0 && t.candidate.kind == Kind::Drift,
@@ -236,7 +239,7 @@ fn new_kinds(a: &Args) {
             }
             let recs: Vec<Realisation> =
                 records.iter().map(|r| Realisation { u: &r.u, y: &r.y, t0: r.t0, given: None }).collect();
-            let o = match diagnose::diagnose_drive(&recs, records[0].ts, &Thresholds::default()) {
+            let o = match diagnose::diagnose_drive(&recs, records[0].ts, &Rules::default()) {
                 Ok(o) => o,
                 Err(e) => return Ok((i, false, 0.0, format!("{} seed {seed}: no diagnosis: {e}", c.name()))),
             };
@@ -248,7 +251,7 @@ fn new_kinds(a: &Args) {
                 truth.iter().all(|t| found.iter().any(|f| truth_named(t, f.0, f.1)))
                     && found.first().is_some_and(|f| truth.iter().any(|t| truth_named(t, f.0, f.1)))
             };
-            let gain = o.json()["gain_pct"].as_f64().unwrap_or(0.0);
+            let gain = o.gain_pct();
             let line = format!(
                 "{:>18} seed {seed:>5}: {:?} -> {:?}, gain {gain:5.1}% {}",
                 c.name(),
@@ -320,7 +323,7 @@ fn old_kinds(a: &Args) {
                 std::fs::create_dir_all(dir).map_err(|e| format!("{}: {e}", dir.display()))?;
                 rec.write(&path).map_err(|e| e.to_string())?;
             }
-            match diagnose::diagnose(&rec.u, &rec.y, rec.ts, &Thresholds::default()) {
+            match diagnose::diagnose(&rec.u, &rec.y, rec.ts, &Rules::default()) {
                 Ok(d) => {
                     let (right, line) = judge(&case, &d);
                     Ok((effect, right, d.gain_pct(), line, carried(&case, &d)))

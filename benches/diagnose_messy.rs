@@ -1,5 +1,5 @@
 //! The share of right diagnoses over a randomized batch of messy records: the cases of
-//! `diagnose_batch` recorded and written as bench records come ([`boucwen_lab::messy`]).
+//! `diagnose_batch` recorded and written as bench records come ([`boucwen_lab::fixtures::messy`]).
 //!
 //! Run with `cargo bench --bench diagnose_messy` (options after `--`: `--per-mess N`,
 //! default 12, records per mess; `--seed S`, default 5000, the first seed; `--verbose`
@@ -13,9 +13,10 @@
 //! This is a measurement, not a test: it asserts nothing and exits 0 unless a record cannot
 //! be drawn.
 
-use boucwen_lab::diagnose::{self, Thresholds};
-use boucwen_lab::messy::{Mess, Messy};
+use boucwen_lab::diagnose;
+use boucwen_lab::fixtures::messy::{Mess, Messy};
 use boucwen_lab::record::import_text;
+use boucwen_lab::rules::Rules;
 use rayon::prelude::*;
 use std::time::Instant;
 
@@ -75,7 +76,7 @@ fn main() {
                 Err(e) => return Ok((mess, false, false, format!("{name}: {e}"))),
                 Ok(i) => {
                     let r = i.record;
-                    match diagnose::diagnose_record(&r.u, &r.y, r.ts, r.t0, None, &Thresholds::default()) {
+                    match diagnose::diagnose_record(&r.u, &r.y, r.ts, r.t0, None, &Rules::default()) {
                         Err(e) => return Ok((mess, false, false, format!("{name}: {e}"))),
                         Ok(d) => {
                             let right = m.is_right(&d);

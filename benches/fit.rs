@@ -4,6 +4,9 @@
 //! - `fit/oe/extended/20k`, `fit/oe/enhanced3/20k`: `fit::fit_oe` as `boucwen identify`
 //!   runs it (the diagnosis' fit options, five starts) on the first half of a 20,000-sample
 //!   record of the virtual bimorph with a hidden 3rd harmonic (seed 1);
+//! - `fit/oscillator/benchmark`: `fit::oscillator::fit_oscillator` on the Bouc–Wen
+//!   benchmark's training record (`../shared/data/bouc-wen-benchmark/train.csv` from the
+//!   workspace root; skipped with a message when missing), the benchmark's options;
 //! - `diagnose/10k`, `diagnose/100k`, `diagnose/1m`: reading a CSV record of the default
 //!   actuator under a 23 Hz sine (10⁴, 10⁵, 10⁶ samples at 1 kHz) and diagnosing it, as
 //!   `boucwen diagnose` does (less the printing). The records are simulated and written
@@ -14,11 +17,16 @@
 //!
 //! Before the timing, one run of each prints what it fitted or found.
 
-use boucwen_lab::diagnose::{self, Thresholds};
-use boucwen_lab::fit::{self, Averaging, ModelSpec, OeOptions};
-use boucwen_lab::hidden::{Case, Effect};
+use boucwen_lab::design::closed_loop;
+use boucwen_lab::diagnose;
+use boucwen_lab::fit::oscillator::{OscillatorOptions, fit_oscillator};
+use boucwen_lab::fit::{self, Averaging, OeOptions};
+use boucwen_lab::fixtures::hidden::{Case, Effect};
+use boucwen_lab::model::ModelSpec;
 use boucwen_lab::record::Record;
-use boucwen_lab::{analysis, experiment};
+use boucwen_lab::rules::Rules;
+use boucwen_lab::signal::analysis;
+use boucwen_sim::oscillator::{FS_HZ, MULTISINE_PERIOD};
 use boucwen_sim::{Bimorph, Scenario};
 use criterion::{Criterion, criterion_group, criterion_main};
 use std::hint::black_box;
@@ -32,9 +40,8 @@ fn fits(c: &mut Criterion) {
     let split = u.len() / 2;
     let f = analysis::estimate_drive(u, ts).expect("drive");
     let opt = OeOptions {
-        lm_starts: diagnose::TERM_STARTS,
         averaging: Averaging::Periods,
-        ..diagnose::fit_options(split, ts)
+        ..diagnose::plan::fit_options(split, ts, &Rules::default())
     };
     let mut g = c.benchmark_group("fit/oe");
     g.sample_size(20).measurement_time(Duration::from_secs(10));
@@ -64,14 +71,14 @@ fn diagnoses(c: &mut Criterion) {
     let mut g = c.benchmark_group("diagnose");
     g.sample_size(10).warm_up_time(Duration::from_millis(1)).measurement_time(Duration::from_secs(20));
     for (id, n) in [("10k", 10_000), ("100k", 100_000), ("1m", 1_000_000)] {
-        let u = experiment::sine(1.0, 23.0, ts, n).expect("drive");
+        let u = closed_loop::sine(1.0, 23.0, ts, n).expect("drive");
         let y = Bimorph::new(&scenario).and_then(|mut b| b.run(&u)).expect("simulation");
         let path = dir.join(format!("sine23-{id}.csv"));
         Record::new("sine23", 0.0, ts, u, y, None).and_then(|r| r.write(&path)).expect("record");
         let run = || {
             let r = Record::read(&path).expect("read");
-            r.validate_for_fit(diagnose::MIN_SAMPLES).expect("valid");
-            diagnose::diagnose(&r.u, &r.y, r.ts, &Thresholds::default()).expect("diagnosis")
+            r.validate_for_fit(Rules::default().sine.min_samples).expect("valid");
+            diagnose::diagnose(&r.u, &r.y, r.ts, &Rules::default()).expect("diagnosis")
         };
         let t0 = std::time::Instant::now();
         let d = run();
@@ -139,5 +146,36 @@ fn mimo_simulate(c: &mut Criterion) {
     g.finish();
 }
 
-criterion_group!(benches, fits, diagnoses, mimo_simulate);
+fn oscillator(c: &mut Criterion) {
+    let path =
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data/bouc-wen-benchmark/train.csv");
+    let Ok(text) = std::fs::read_to_string(&path) else {
+        println!("fit/oscillator/benchmark: skipped, {} not found", path.display());
+        return;
+    };
+    let (mut u, mut y) = (Vec::new(), Vec::new());
+    for line in text.lines().skip(1) {
+        let f: Vec<f64> = line.split(',').map(|v| v.parse().expect("number")).collect();
+        u.push(f[1]);
+        y.push(f[2]);
+    }
+    let opt = OscillatorOptions::benchmark(MULTISINE_PERIOD);
+    let run = || fit_oscillator(&u, &y, 1.0 / FS_HZ, &opt).expect("fit");
+    let t0 = std::time::Instant::now();
+    let first = run();
+    println!(
+        "fit/oscillator/benchmark: {:.3} µm in {:.2} s, {} after {} iterations, {} evaluations",
+        first.rms_fit * 1e6,
+        t0.elapsed().as_secs_f64(),
+        first.stop,
+        first.iterations,
+        first.evaluations
+    );
+    let mut g = c.benchmark_group("fit/oscillator");
+    g.sample_size(10).warm_up_time(Duration::from_millis(1)).measurement_time(Duration::from_secs(40));
+    g.bench_function("benchmark", |b| b.iter(|| black_box(run().rms_fit)));
+    g.finish();
+}
+
+criterion_group!(benches, fits, diagnoses, oscillator, mimo_simulate);
 criterion_main!(benches);

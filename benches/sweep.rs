@@ -5,7 +5,7 @@
 //! and `sweep/seconds100` (`--seconds 100`). Before the timing, one run of each prints its
 //! simulated actuator time and its speed-up over real time.
 
-use boucwen_lab::sweep::{self, SweepOptions};
+use boucwen_lab::experiments::sweep::{self, SweepOptions};
 use criterion::{Criterion, criterion_group, criterion_main};
 use std::hint::black_box;
 use std::time::Duration;

@@ -1,10 +1,10 @@
 //! Writes the records of the fit comparison with the Python peer (`benches/peers/README.md`):
-//! cases of the virtual bimorph with a hidden effect ([`boucwen_lab::hidden::Case`]),
+//! cases of the virtual bimorph with a hidden effect ([`boucwen_lab::fixtures::hidden::Case`]),
 //! 20 s (20,000 samples at 1 kHz) each.
 //!
 //! `cargo run --release --example peer_records -- DIR`
 
-use boucwen_lab::hidden::{Case, Effect};
+use boucwen_lab::fixtures::hidden::{Case, Effect};
 
 /// The records: effect and seed.
 const RECORDS: [(Effect, u64); 7] = [

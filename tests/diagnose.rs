@@ -1,6 +1,6 @@
 //! `diagnose` finds effects hidden in records of the virtual bimorph.
 //!
-//! Each record comes from a randomized, seeded scenario ([`boucwen_lab::hidden::Case`]) in
+//! Each record comes from a randomized, seeded scenario ([`boucwen_lab::fixtures::hidden::Case`]) in
 //! which one effect is switched on (or none) without telling the diagnosis. The diagnosis
 //! must name the hidden effect first (kind, order, frequency within 2 Hz) and lower the
 //! held-out RMS by at least 50 %, and find nothing in the clean records.
@@ -11,15 +11,18 @@
 //! one, is a miss there: the extended model imitates that harmonic to within 1.3 times the
 //! noise floor, and no term can gain 50 % on it.
 
-use boucwen_lab::diagnose::{self, Diagnosis, Kind, Thresholds};
-use boucwen_lab::hidden::{Case, Effect};
+use boucwen_lab::diagnose::evidence::Evidence;
+use boucwen_lab::diagnose::{self, Diagnosis, Kind};
+use boucwen_lab::fixtures::hidden::{Case, Effect};
 use boucwen_lab::record::Record;
+use boucwen_lab::report::diagnosis::{sine_json, sine_text, steps_sentence};
+use boucwen_lab::rules::Rules;
 use boucwen_sim::{Bimorph, Scenario};
 
 fn diagnosed(effect: Effect, seed: u64) -> (Case, Diagnosis) {
     let case = Case::generate(effect, seed).expect("case");
     let rec = case.record().expect("record");
-    let d = diagnose::diagnose(&rec.u, &rec.y, rec.ts, &Thresholds::default()).expect("diagnosis");
+    let d = diagnose::diagnose(&rec.u, &rec.y, rec.ts, &Rules::default()).expect("diagnosis");
     (case, d)
 }
 
@@ -100,14 +103,18 @@ fn the_default_actuator_at_23_hz_shows_its_odd_harmonic_oscillation() {
     let u: Vec<f64> = (0..10_000).map(|k| (std::f64::consts::TAU * 23.0 * k as f64 * ts).sin()).collect();
     let y = Bimorph::new(&s).unwrap().run(&u).unwrap();
     let rec = Record::new("default-23hz", 0.0, ts, u, y, None).unwrap();
-    let d = diagnose::diagnose(&rec.u, &rec.y, rec.ts, &Thresholds::default()).unwrap();
+    let d = diagnose::diagnose(&rec.u, &rec.y, rec.ts, &Rules::default()).unwrap();
     let f = &d.findings[0];
-    assert_eq!((f.kind, f.order), (Kind::OddHarmonic, Some(3)), "{}", d.summary("default"));
+    let r = Rules::default();
+    assert_eq!((f.kind, f.order), (Kind::OddHarmonic, Some(3)), "{}", sine_text(&d, "default", &r));
     assert!((f.freq_hz - 69.0).abs() < 0.5);
-    assert!(f.cause.contains("resonance near"), "{}", f.cause);
-    assert!(d.gain_pct() >= 50.0, "{}", d.summary("default"));
+    // The fitted structure's resonance lies near the harmonic, which it amplifies.
+    let Evidence::Harmonic(h) = &f.evidence else { panic!("{:?}", f.evidence) };
+    let near = h.resonance.expect("a resonance near the 3rd harmonic");
+    assert!((near.hz - 69.0).abs() <= r.sine.near_resonance * near.hz.max(69.0), "{near:?}");
+    assert!(d.gain_pct() >= 50.0, "{}", sine_text(&d, "default", &r));
     // The JSON carries the same.
-    let j = d.json();
+    let j = sine_json(&d, &r);
     assert_eq!(j["findings"][0]["kind"], "odd_harmonic");
     assert_eq!(j["findings"][0]["order"], 3);
     assert_eq!(j["extended"]["model"], d.model.name());
@@ -125,8 +132,8 @@ fn a_stepped_sine_is_diagnosed_step_by_step() {
         .collect();
     let y = Bimorph::new(&s).unwrap().run(&u).unwrap();
     // As one sine it is not: the whole record does not repeat.
-    assert!(diagnose::diagnose(&u, &y, ts, &Thresholds::default()).is_err());
-    let steps = diagnose::diagnose_steps(&u, &y, ts, 0.0, &Thresholds::default()).expect("a stepped sine");
+    assert!(diagnose::diagnose(&u, &y, ts, &Rules::default()).is_err());
+    let steps = diagnose::steps::diagnose_steps(&u, &y, ts, 0.0, &Rules::default()).expect("a stepped sine");
     let freqs: Vec<f64> = steps.iter().map(|s| s.segment.freq_hz).collect();
     assert_eq!(freqs.len(), 3, "{freqs:?}");
     for (got, want) in freqs.iter().zip([14.0, 23.0, 40.0]) {
@@ -141,13 +148,13 @@ fn a_stepped_sine_is_diagnosed_step_by_step() {
         (d14.findings[0].kind, d14.findings[0].order),
         (Kind::OddHarmonic, Some(5)),
         "{}",
-        d14.summary("14")
+        sine_text(&d14, "14", &Rules::default())
     );
     assert_eq!(
         (d23.findings[0].kind, d23.findings[0].order),
         (Kind::OddHarmonic, Some(3)),
         "{}",
-        d23.summary("23")
+        sine_text(&d23, "23", &Rules::default())
     );
     // Each step's window lies in its own part of the record, after its own start-up.
     for (i, st) in steps.iter().enumerate() {
@@ -159,6 +166,6 @@ fn a_stepped_sine_is_diagnosed_step_by_step() {
     // The step onto the drive measures the delay from rest only: the first step's.
     assert!(d14.delay.is_some());
     assert!(sine(1).delay.is_none() && sine(2).delay.is_none());
-    let sentence = diagnose::steps_sentence(&steps, ts, 0.0);
+    let sentence = steps_sentence(&steps, ts, 0.0);
     assert!(sentence.starts_with("the drive steps through 3 sines: 14.000 Hz 1.000 V (0 to "), "{sentence}");
 }

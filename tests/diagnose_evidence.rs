@@ -2,20 +2,24 @@
 //! `order` where one applies, `freq_hz` or a band, `level` or `residual_share`, `cause`,
 //! `kept` and `term_rms_um`, most important first (the kept terms in the order they were
 //! chosen, then what no term removed). Checked on sine records with each hidden cause of
-//! [`boucwen_lab::effects`] (and two at once) and on periodic and multisine records with a
+//! [`boucwen_lab::fixtures::effects`] (and two at once) and on periodic and multisine records with a
 //! hidden odd or even nonlinearity; the truth is kept by the test, and each hidden effect
 //! must be named.
 
-use boucwen_lab::diagnose::{self, Outcome, Thresholds};
-use boucwen_lab::effects::{Nonlinearity, PeriodicCase, PeriodicDrive, SineCase, SineEffect, Truth};
-use boucwen_lab::periodic::Realisation;
+use boucwen_lab::diagnose::periodic::Realisation;
+use boucwen_lab::diagnose::{self, Outcome};
+use boucwen_lab::fixtures::effects::{
+    Nonlinearity, PeriodicCase, PeriodicDrive, SineCase, SineEffect, Truth,
+};
 use boucwen_lab::record::Record;
+use boucwen_lab::report::diagnosis::json;
+use boucwen_lab::rules::Rules;
 use serde_json::Value;
 
 fn outcome(records: &[Record]) -> Outcome {
     let recs: Vec<Realisation> =
         records.iter().map(|r| Realisation { u: &r.u, y: &r.y, t0: r.t0, given: None }).collect();
-    diagnose::diagnose_drive(&recs, records[0].ts, &Thresholds::default()).expect("diagnosis")
+    diagnose::diagnose_drive(&recs, records[0].ts, &Rules::default()).expect("diagnosis")
 }
 
 /// The evidence of every finding, and kept findings before the others; returns the kinds
@@ -73,7 +77,7 @@ fn sine_findings_carry_their_evidence_and_name_each_hidden_cause() {
     for e in SineEffect::ALL {
         let c = SineCase::generate(e, 1).expect("case");
         let o = outcome(&[c.record().expect("record")]);
-        let j = o.json();
+        let j = json(&o, &Rules::default());
         let what = format!("{} seed 1", e.name());
         let found = evidence(&j, &what);
         eprintln!("{what}: truth {:?}; gain {:.1} %", c.truth, j["gain_pct"]);
@@ -98,7 +102,7 @@ fn periodic_findings_carry_their_evidence_and_name_the_hidden_parity() {
     ] {
         let c = PeriodicCase::generate(drive, nl, 1).expect("case");
         let o = outcome(&c.records().expect("records"));
-        let j = o.json();
+        let j = json(&o, &Rules::default());
         let found = evidence(&j, &c.name());
         eprintln!("{}: {found:?}; gain {:.1} %", c.name(), j["gain_pct"]);
         for f in j["findings"].as_array().unwrap() {
@@ -122,7 +126,7 @@ fn a_clipped_output_gets_the_drive_that_keeps_it_inside_the_range() {
     for seed in 1..=4 {
         let c = SineCase::generate(SineEffect::SensorRange, seed).expect("case");
         let [lo, hi] = c.sensor_range.expect("a sensor range");
-        let j = outcome(&[c.record().expect("record")]).json();
+        let j = json(&outcome(&[c.record().expect("record")]), &Rules::default());
         let what = format!("sensor-range seed {seed}");
         let f = &j["findings"][0];
         assert_eq!(f["kind"], "saturation", "{what}: {j}");

@@ -10,10 +10,11 @@
 //! three: "record more periods"), a square's fast harmonics and the dropouts were counted
 //! as noise.
 
-use boucwen_lab::diagnose::{self, DiagnoseError, Kind, Outcome, Thresholds};
-use boucwen_lab::periodic::Realisation;
+use boucwen_lab::diagnose::periodic::Realisation;
+use boucwen_lab::diagnose::{self, DiagnoseError, Kind, Outcome};
 use boucwen_lab::record::{ImportOptions, import_text};
-use boucwen_lab::steady::DriveKind;
+use boucwen_lab::rules::Rules;
+use boucwen_lab::signal::steady::DriveKind;
 use std::f64::consts::TAU;
 use std::fmt::Write as _;
 
@@ -68,7 +69,7 @@ fn csv(u: &[f64], y: &[f64]) -> String {
 fn outcome(text: &str) -> Result<Outcome, DiagnoseError> {
     let r = import_text(text, "stack.csv", &ImportOptions::default()).expect("read").record;
     let rec = Realisation { u: &r.u, y: &r.y, t0: r.t0, given: None };
-    diagnose::diagnose_drive(&[rec], r.ts, &Thresholds::default())
+    diagnose::diagnose_drive(&[rec], r.ts, &Rules::default())
 }
 
 #[test]
@@ -151,7 +152,7 @@ fn a_square_drive_s_record_is_at_its_noise_floor_and_the_dropouts_are_not_the_ac
             .unwrap()
             .record;
     let rec = Realisation { u: &kept.u, y: &kept.y, t0: kept.t0, given: None };
-    let Ok(Outcome::Periodic(k)) = diagnose::diagnose_drive(&[rec], kept.ts, &Thresholds::default()) else {
+    let Ok(Outcome::Periodic(k)) = diagnose::diagnose_drive(&[rec], kept.ts, &Rules::default()) else {
         panic!("a periodic diagnosis")
     };
     assert!(k.noise_um > 10.0 * d.noise_um, "{} vs {}", k.noise_um, d.noise_um);

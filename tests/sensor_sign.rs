@@ -6,11 +6,12 @@
 //! refinements stop by tolerances). Checked on a record of every kind of hidden effect and
 //! drive. The fit finds the output's sign as `boucwen_lab::fit::fit_oe_on` says.
 
-use boucwen_lab::diagnose::{self, Outcome, Thresholds};
-use boucwen_lab::effects::{Nonlinearity, PeriodicCase, PeriodicDrive, SineCase, SineEffect};
-use boucwen_lab::hidden::{Case, Effect};
-use boucwen_lab::periodic::Realisation;
+use boucwen_lab::diagnose::periodic::Realisation;
+use boucwen_lab::diagnose::{self, Outcome};
+use boucwen_lab::fixtures::effects::{Nonlinearity, PeriodicCase, PeriodicDrive, SineCase, SineEffect};
+use boucwen_lab::fixtures::hidden::{Case, Effect};
 use boucwen_lab::record::Record;
+use boucwen_lab::rules::Rules;
 use serde_json::Value;
 
 fn outcome(records: &[Record], flip: bool) -> Value {
@@ -18,9 +19,8 @@ fn outcome(records: &[Record], flip: bool) -> Value {
         records.iter().map(|r| r.y.iter().map(|&y| if flip { -y } else { y }).collect()).collect();
     let recs: Vec<Realisation> =
         records.iter().zip(&ys).map(|(r, y)| Realisation { u: &r.u, y, t0: r.t0, given: None }).collect();
-    let o: Outcome =
-        diagnose::diagnose_drive(&recs, records[0].ts, &Thresholds::default()).expect("diagnosis");
-    o.json()
+    let o: Outcome = diagnose::diagnose_drive(&recs, records[0].ts, &Rules::default()).expect("diagnosis");
+    boucwen_lab::report::diagnosis::json(&o, &Rules::default())
 }
 
 fn findings(j: &Value) -> Vec<(String, Option<u64>, bool)> {

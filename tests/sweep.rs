@@ -6,8 +6,8 @@
 //! The harmonic orders are not given to the sweep: it finds them in the data. The sweep's own
 //! records written to disk give the same identification columns through `sweep --measured`.
 
+use boucwen_lab::experiments::sweep::{self, Row, SweepOptions, SweepResult};
 use boucwen_lab::report;
-use boucwen_lab::sweep::{self, Row, SweepOptions, SweepResult};
 use std::sync::OnceLock;
 
 fn options() -> SweepOptions {
@@ -107,8 +107,8 @@ fn the_sweep_writes_its_table_and_figures() {
 /// is the same.
 #[test]
 fn the_measured_sweep_of_the_sweeps_records_matches_the_simulated_one() {
+    use boucwen_lab::experiments::sweep_measured::{self, MeasuredInput};
     use boucwen_lab::record::Record;
-    use boucwen_lab::sweep_measured::{self, MeasuredInput};
     let opts = options();
     let ts = opts.scenario.sampling.ts_s;
     let dir = std::env::temp_dir().join(format!("boucwen-sweep-measured-{}", std::process::id()));

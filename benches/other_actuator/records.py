@@ -8,7 +8,7 @@ squares, slow sines, chirps, amplitude steps, idle starts). Deterministic (fixed
     python3 benches/other_actuator/records.py DIR      # then: boucwen diagnose DIR/*.csv
 
 Needs numpy and scipy (pip install numpy scipy). Not run in CI: a measurement, see the
-README's "Records of another actuator".
+book's "Records of another actuator" (docs/book/src/diagnosis/other-actuator.md).
 """
 import os
 import sys

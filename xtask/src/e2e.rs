@@ -48,9 +48,10 @@
 use crate::session::{Session, request_ok};
 use crate::tools::{self, Board};
 use boucwen_hal::transport::{self, Link, Port, SerialPort};
-use boucwen_lab::board_design::{DesignFile, settle_samples};
-use boucwen_link::device::{Controller, OnChipPlant};
+use boucwen_lab::design::board::{DesignFile, settle_samples};
+use boucwen_link::device::Controller;
 use boucwen_link::message::{PlantParams, SafeReason, command_flags};
+use boucwen_link::plant::OnChipPlant;
 use boucwen_link::{Decoder, Message, Packet};
 use std::path::Path;
 use std::process::{Command, Stdio};

@@ -9,7 +9,7 @@
 //!
 //! * `excite`: the board drives the excitation ([`boucwen_link::excitation`]) and records
 //!   the response; the record (`t,u,y`) is what `identify`, `diagnose` and `design` read.
-//! * `design`: the compensator from the records ([`boucwen_lab::board_design`]), written
+//! * `design`: the compensator from the records ([`boucwen_lab::design::board`]), written
 //!   as a versioned design file; refused, with the reason, when the model cannot be
 //!   inverted over the range the tracking needs.
 //! * `load`: the design's parameters and drive limits to the board, read back and compared
@@ -31,7 +31,7 @@ use boucwen_hal::board::{
 };
 use boucwen_hal::hil;
 use boucwen_hal::transport::{Link, SerialPort, open_serial};
-use boucwen_lab::board_design::{self, DesignFile, DesignOptions, HarmonicChoice};
+use boucwen_lab::design::board::{self as board_design, DesignFile, DesignOptions, HarmonicChoice};
 use boucwen_lab::record::Record;
 use boucwen_link::excitation::{ExcitationParams, MAX_TONES, Tone};
 use boucwen_link::message::SafetyParams;

@@ -1,14 +1,17 @@
 //! `boucwen diagnose DATA.csv [MORE.csv …] [--realisations] [--json] [--report DIR]`: what
 //! the extended model gets wrong on a record, the cause, the term that removes it and the
 //! gain (see [`boucwen_lab::diagnose`]; a sine drive, or a periodic or multisine drive, see
-//! [`boucwen_lab::periodic`]). Several records run on all cores, one report (or one JSON
+//! [`boucwen_lab::diagnose::periodic`]). Several records run on all cores, one report (or one JSON
 //! line) per record in the order given; with `--realisations` they are realisations of one
 //! periodic or multisine drive, diagnosed together.
 
 use crate::record_args::RecordArgs;
 use boucwen_lab::diagnose::Outcome;
-use boucwen_lab::periodic::Realisation;
+use boucwen_lab::diagnose::periodic::Realisation;
+use boucwen_lab::diagnose::steps::{self, SineStep};
 use boucwen_lab::record::Imported;
+use boucwen_lab::report::diagnosis as text;
+use boucwen_lab::rules::Rules;
 use boucwen_lab::{diagnose, report};
 use rayon::prelude::*;
 use std::path::{Path, PathBuf};
@@ -17,8 +20,15 @@ use std::path::{Path, PathBuf};
 pub struct DiagnoseArgs {
     /// The records: t, u, y of a hysteretic actuator driven by a sine, a periodic waveform
     /// (triangle, square) or a multisine (see --columns and the units for other layouts).
-    #[arg(required = true)]
+    #[arg(required_unless_present = "print_rules")]
     data: Vec<PathBuf>,
+    /// The rules the diagnosis decides by, from a TOML (or .json) file: any field of the
+    /// table overrides its default (see --print-rules); --json echoes the rules used.
+    #[arg(long, value_name = "FILE")]
+    rules: Option<PathBuf>,
+    /// Print the default rules as TOML (a file to start --rules from) and exit.
+    #[arg(long)]
+    print_rules: bool,
     /// The records are realisations of one periodic or multisine drive (the same lines, new
     /// phases): one diagnosis, the models fitted on the first and tested on the others.
     #[arg(long)]
@@ -35,31 +45,29 @@ pub struct DiagnoseArgs {
 }
 
 /// One record's outcome: what to print on stdout, or the one-line error.
-fn one(a: &DiagnoseArgs, path: &Path, report_dir: Option<PathBuf>) -> Result<String, String> {
+fn one(a: &DiagnoseArgs, rules: &Rules, path: &Path, report_dir: Option<PathBuf>) -> Result<String, String> {
     let name = path.display().to_string();
     let imported = a.record.read(path)?;
     let r = &imported.record;
-    r.validate_for_fit(diagnose::MIN_SAMPLES).map_err(|e| e.to_string())?;
+    r.validate_for_fit(rules.sine.min_samples).map_err(|e| e.to_string())?;
     let given = a.record.window(r)?;
     if given.is_none() {
-        let th = diagnose::Thresholds::default();
-        if let Some(steps) = diagnose::diagnose_steps(&r.u, &r.y, r.ts, r.t0, &th) {
-            return stepped(a, &imported, &name, &steps, report_dir);
+        if let Some(steps) = steps::diagnose_steps(&r.u, &r.y, r.ts, r.t0, rules) {
+            return stepped(a, rules, &imported, &name, &steps, report_dir);
         }
     }
     let rec = Realisation { u: &r.u, y: &r.y, t0: r.t0, given };
-    let d = diagnose::diagnose_drive(&[rec], r.ts, &diagnose::Thresholds::default())
-        .map_err(|e| format!("{name}: {e}"))?;
+    let d = diagnose::diagnose_drive(&[rec], r.ts, rules).map_err(|e| format!("{name}: {e}"))?;
     if let Some(dir) = &report_dir {
-        write_report(&d, &r.u, &r.y, &name, dir)?;
+        write_report(&d, &r.u, &r.y, &name, dir, rules)?;
     }
     Ok(if a.json {
-        let mut j = d.json();
+        let mut j = text::json(&d, rules);
         j["file"] = serde_json::json!(name);
         j["import"] = import_json(&imported);
         format!("{j}\n")
     } else {
-        format!("read as {}\n{}", imported.info.describe(), d.summary(&name))
+        format!("read as {}\n{}", imported.info.describe(), text::text(&d, &name, rules))
     })
 }
 
@@ -67,9 +75,10 @@ fn one(a: &DiagnoseArgs, path: &Path, report_dir: Option<PathBuf>) -> Result<Str
 /// sentence), then what changes across the steps.
 fn stepped(
     a: &DiagnoseArgs,
+    rules: &Rules,
     imported: &Imported,
     name: &str,
-    steps: &[diagnose::SineStep],
+    steps: &[SineStep],
     report_dir: Option<PathBuf>,
 ) -> Result<String, String> {
     let r = &imported.record;
@@ -78,7 +87,7 @@ fn stepped(
         let first = steps[0].outcome.as_ref().err().map(ToString::to_string).unwrap_or_default();
         return Err(format!(
             "{name}: {}; none could be: the first ({:.3} Hz) because {first}",
-            diagnose::steps_sentence(steps, r.ts, r.t0),
+            text::steps_sentence(steps, r.ts, r.t0),
             steps[0].segment.freq_hz
         ));
     }
@@ -89,7 +98,7 @@ fn stepped(
 {name}: {}
 ",
             imported.info.describe(),
-            diagnose::steps_sentence(steps, r.ts, r.t0)
+            text::steps_sentence(steps, r.ts, r.t0)
         ));
     }
     for (i, s) in steps.iter().enumerate() {
@@ -103,9 +112,9 @@ fn stepped(
             Ok(d) => {
                 if let Some(dir) = &report_dir {
                     let (u, y) = (&r.u[s.segment.start..s.segment.end], &r.y[s.segment.start..s.segment.end]);
-                    write_report(d, u, y, &label, &dir.join(format!("step-{}", i + 1)))?;
+                    write_report(d, u, y, &label, &dir.join(format!("step-{}", i + 1)), rules)?;
                 }
-                let j = d.json();
+                let j = text::json(d, rules);
                 if a.json {
                     let mut j = j;
                     j["file"] = serde_json::json!(name);
@@ -117,7 +126,7 @@ fn stepped(
                         "\n== step {} of {}: {from} to {to} s ==\n{}",
                         i + 1,
                         steps.len(),
-                        d.summary(&label)
+                        text::text(d, &label, rules)
                     ));
                 }
             }
@@ -136,28 +145,35 @@ fn stepped(
         }
     }
     if !a.json {
-        let across: Vec<String> = steps.iter().map(diagnose::SineStep::line).collect();
+        let across: Vec<String> = steps.iter().map(text::step_line).collect();
         out.push_str(&format!("\nacross the steps (held out):\n{}\n", across.join("\n")));
     }
     Ok(out)
 }
 
-fn write_report(d: &Outcome, u: &[f64], y: &[f64], name: &str, dir: &Path) -> Result<(), String> {
+fn write_report(
+    d: &Outcome,
+    u: &[f64],
+    y: &[f64],
+    name: &str,
+    dir: &Path,
+    rules: &Rules,
+) -> Result<(), String> {
     match d {
-        Outcome::Sine(d) => report::write_diagnosis(d, d.analysed(u), d.analysed(y), name, dir),
-        Outcome::Periodic(d) => report::write_periodic(d, name, dir),
+        Outcome::Sine(d) => report::write_diagnosis(d, d.analysed(u), d.analysed(y), name, dir, rules),
+        Outcome::Periodic(d) => report::write_periodic(d, name, dir, rules),
     }
     .map(|_| ())
     .map_err(|e| e.to_string())
 }
 
 /// The records as realisations of one drive: one diagnosis.
-fn together(a: &DiagnoseArgs) -> Result<(), String> {
+fn together(a: &DiagnoseArgs, rules: &Rules) -> Result<(), String> {
     let imported: Vec<Imported> = a.data.par_iter().map(|p| a.record.read(p)).collect::<Result<_, _>>()?;
     let mut recs = vec![];
     for (i, path) in imported.iter().zip(&a.data) {
         let r = &i.record;
-        r.validate_for_fit(diagnose::MIN_SAMPLES).map_err(|e| e.to_string())?;
+        r.validate_for_fit(rules.sine.min_samples).map_err(|e| e.to_string())?;
         if (r.ts - imported[0].record.ts).abs() > 1e-6 * r.ts {
             return Err(format!(
                 "{}: sampled every {} s, {} every {} s: realisations of one drive share the sample interval",
@@ -172,18 +188,17 @@ fn together(a: &DiagnoseArgs) -> Result<(), String> {
     let names: Vec<String> = a.data.iter().map(|p| p.display().to_string()).collect();
     let name = names.join(" + ");
     let ts = imported[0].record.ts;
-    let d = diagnose::diagnose_drive(&recs, ts, &diagnose::Thresholds::default())
-        .map_err(|e| format!("{name}: {e}"))?;
+    let d = diagnose::diagnose_drive(&recs, ts, rules).map_err(|e| format!("{name}: {e}"))?;
     if let Some(dir) = &a.report {
-        write_report(&d, recs[0].u, recs[0].y, &name, dir)?;
+        write_report(&d, recs[0].u, recs[0].y, &name, dir, rules)?;
     }
     if a.json {
-        let mut j = d.json();
+        let mut j = text::json(&d, rules);
         j["files"] = serde_json::json!(names);
         j["import"] = serde_json::json!(imported.iter().map(import_json).collect::<Vec<_>>());
         println!("{j}");
     } else {
-        print!("{}", d.summary(&name));
+        print!("{}", text::text(&d, &name, rules));
     }
     if let Some(dir) = &a.report {
         eprintln!("wrote {}", dir.join("index.html").display());
@@ -218,12 +233,31 @@ pub fn import_json(i: &Imported) -> serde_json::Value {
     })
 }
 
+/// The rules: the defaults, or a file's overrides of them.
+fn rules_of(a: &DiagnoseArgs) -> Result<Rules, String> {
+    let Some(path) = &a.rules else { return Ok(Rules::default()) };
+    let name = path.display().to_string();
+    let text = std::fs::read_to_string(path).map_err(|e| format!("{name}: {e}"))?;
+    Rules::parse(&name, &text).map_err(|e| e.to_string())
+}
+
 pub fn run(a: DiagnoseArgs) -> Result<(), String> {
+    if a.print_rules {
+        print!("{}", Rules::default().to_toml());
+        return Ok(());
+    }
+    let rules = rules_of(&a)?;
     if a.realisations {
-        return together(&a);
+        return together(&a, &rules);
     }
     if let [path] = a.data.as_slice() {
-        let out = one(&a, path, a.report.clone())?;
+        if let Some(rec) = a.record.mimo(path) {
+            if a.rules.is_some() || a.realisations {
+                return Err("--rules and --realisations are for records of one input and one output".into());
+            }
+            return crate::cmd_mimo::diagnose(&rec?, a.json, a.report.as_deref());
+        }
+        let out = one(&a, &rules, path, a.report.clone())?;
         print!("{out}");
         if let Some(dir) = &a.report {
             eprintln!("wrote {}", dir.join("index.html").display());
@@ -238,7 +272,7 @@ pub fn run(a: DiagnoseArgs) -> Result<(), String> {
             let dir = a.report.as_ref().map(|d| {
                 d.join(path.file_stem().map_or_else(|| "record".into(), |s| s.to_string_lossy().into_owned()))
             });
-            one(&a, path, dir)
+            one(&a, &rules, path, dir)
         })
         .collect();
     let mut failed = 0;

@@ -1,12 +1,12 @@
 //! `boucwen sweep`: the paper's identification and compensation experiments over a frequency
 //! range on the virtual bimorph; with `--measured DIR`, the identification half from measured
-//! records ([`boucwen_lab::sweep_measured`]).
+//! records ([`boucwen_lab::experiments::sweep_measured`]).
 
 use crate::record_args::RecordArgs;
 use boucwen_lab::design::ResponseSource;
+use boucwen_lab::experiments::sweep::{self, HarmonicChoice, SweepOptions, cell};
+use boucwen_lab::experiments::sweep_measured::{self, MeasuredInput};
 use boucwen_lab::report;
-use boucwen_lab::sweep::{self, HarmonicChoice, SweepOptions};
-use boucwen_lab::sweep_measured::{self, MeasuredInput};
 use boucwen_sim::Scenario;
 use clap::ValueEnum;
 use rayon::prelude::*;
@@ -62,7 +62,8 @@ pub struct SweepArgs {
     json: bool,
     /// Sweep measured records instead of the virtual bimorph: a directory of records of one
     /// actuator, one sine frequency each, and one broadband (multisine) record for the
-    /// structure; the lowest sine at or below 2 Hz gives the loop shape. Writes sweep.csv
+    /// structure (without it, the structure is fitted to the sines' fundamentals, at least 3
+    /// frequencies); the lowest sine at or below 2 Hz gives the loop shape. Writes sweep.csv
     /// (the tracking columns nan), modelling_error.svg, summary.txt and sweep.json.
     #[arg(long, value_name = "DIR")]
     measured: Option<PathBuf>,
@@ -188,21 +189,20 @@ fn print_table(r: &sweep::SweepResult) {
     );
     for w in &r.rows {
         println!(
-            "{:>7.2} {:>5} | {:>9.4} {:>9.4} {:>9.4} {:>9.4} | {:>9.4} {:>9.4} {:>9.4} {:>9.4} | {:>9.4} {:>9.4} \
-             {:>9.4}",
+            "{:>7.2} {:>5} | {:>9} {:>9} {:>9} {:>9} | {:>9} {:>9} {:>9} {:>9} | {:>9} {:>9} {:>9}",
             w.freq_hz,
             format!("{}/{}/{}", w.harmonic_order, w.cancel_order, w.cancel_order_oe),
-            w.rms_extended_um,
-            w.rms_enhanced_um,
-            w.rmse_uf_um,
-            w.rmse_proposed_um,
-            w.rms_extended_oe_um,
-            w.rms_enhanced_oe_um,
-            w.rmse_uf_oe_um,
-            w.rmse_proposed_oe_um,
-            w.rmse_open_um,
-            w.rmse_pi_um,
-            w.rmse_orc_um
+            cell(w.rms_extended_um),
+            cell(w.rms_enhanced_um),
+            cell(w.rmse_uf_um),
+            cell(w.rmse_proposed_um),
+            cell(w.rms_extended_oe_um),
+            cell(w.rms_enhanced_oe_um),
+            cell(w.rmse_uf_oe_um),
+            cell(w.rmse_proposed_oe_um),
+            cell(w.rmse_open_um),
+            cell(w.rmse_pi_um),
+            cell(w.rmse_orc_um)
         );
     }
 }

@@ -1,4 +1,4 @@
-//! `boucwen`: sweep, simulate, identify, diagnose, and drive a board over a serial link (hil, board).
+//! `boucwen`: sweep, simulate, identify, compare, diagnose, and drive a board over a serial link (hil, board).
 //!
 //! Every failure prints one line naming what went wrong and where, and exits non-zero.
 
@@ -6,9 +6,11 @@ use clap::{Parser, Subcommand};
 use std::process::ExitCode;
 
 mod cmd_board;
+mod cmd_compare;
 mod cmd_diagnose;
 mod cmd_hil;
 mod cmd_identify;
+mod cmd_mimo;
 mod cmd_simulate;
 mod cmd_sweep;
 mod record_args;
@@ -35,6 +37,9 @@ enum Command {
     /// Fit a model to a record (t, u, y) and report its parameters and its free-run error on
     /// the part held out.
     Identify(cmd_identify::IdentifyArgs),
+    /// Run a model file (`identify --save`) in free simulation on another record's drive and
+    /// report its RMS error, fit and NRMSE.
+    Compare(cmd_compare::CompareArgs),
     /// Show what the extended model gets wrong on a record, name the cause, extend the model
     /// and measure the gain.
     Diagnose(cmd_diagnose::DiagnoseArgs),
@@ -52,6 +57,7 @@ fn main() -> ExitCode {
         Command::Sweep(a) => cmd_sweep::run(a),
         Command::Simulate(a) => cmd_simulate::run(a),
         Command::Identify(a) => cmd_identify::run(a).map_err(anyhow::Error::msg),
+        Command::Compare(a) => cmd_compare::run(a).map_err(anyhow::Error::msg),
         Command::Diagnose(a) => cmd_diagnose::run(a).map_err(anyhow::Error::msg),
         Command::Hil(a) => cmd_hil::run(a),
         Command::Board(a) => cmd_board::run(a),

@@ -12,10 +12,11 @@
 
 use boucwen_core::model::{BoucWenParams, ExtendedParams, HarmonicBranch};
 use boucwen_core::signal::Oscillator;
-use boucwen_lab::board_design::DesignFile;
+use boucwen_lab::design::board::DesignFile;
 use boucwen_link::analog::NoFrontEnd;
-use boucwen_link::device::{Controller, Device, OnChipPlant, TimerRequest};
+use boucwen_link::device::{Controller, Device, TimerRequest};
 use boucwen_link::message::{PlantParams, SafeReason, command_flags};
+use boucwen_link::plant::OnChipPlant;
 use boucwen_link::{Decoder, Message, Packet};
 use serialport::{SerialPort, TTYPort};
 use std::io::{Read, Write};
@@ -234,7 +235,7 @@ fn excite_design_load_run_on_the_board() {
     let mut c = Controller::new(&params).unwrap();
     let mut a = OnChipPlant::new(&plant()).unwrap();
     let (mut y_prev, mut sq) = (None, 0.0);
-    let settle = boucwen_lab::board_design::settle_samples(5000, params.fade_samples);
+    let settle = boucwen_lab::design::board::settle_samples(5000, params.fade_samples);
     for k in 0..5000 {
         let step = c.step(y_prev).unwrap();
         let y = a.step(step.out.u);

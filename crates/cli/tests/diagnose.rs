@@ -1,7 +1,7 @@
 //! `boucwen diagnose` and `boucwen identify` end to end: a record with a hidden odd
 //! harmonic written to CSV, the report on the terminal, as JSON and as a page; bad input.
 
-use boucwen_lab::hidden::{Case, Effect};
+use boucwen_lab::fixtures::hidden::{Case, Effect};
 use std::path::PathBuf;
 use std::process::Command;
 
@@ -188,7 +188,7 @@ fn bad_records_are_one_line_errors_naming_file_and_row() {
 /// parity, the held-out error is on the other realisation, and the page is written.
 #[test]
 fn realisations_of_a_multisine_are_diagnosed_together() {
-    use boucwen_lab::effects::{Nonlinearity, PeriodicCase, PeriodicDrive};
+    use boucwen_lab::fixtures::effects::{Nonlinearity, PeriodicCase, PeriodicDrive};
     for (nl, want, avoid) in [
         (Nonlinearity::Even, "even_distortion", "odd_distortion"),
         (Nonlinearity::Odd, "odd_distortion", "even_distortion"),

@@ -2,8 +2,8 @@
 //! flags that read them, the sentences for records without a response or with a drive
 //! diagnose does not analyse, several records at once, and a model that is not stable.
 
-use boucwen_lab::hidden::Effect;
-use boucwen_lab::messy::{self, Mess, Messy};
+use boucwen_lab::fixtures::hidden::Effect;
+use boucwen_lab::fixtures::messy::{self, Mess, Messy};
 use std::f64::consts::TAU;
 use std::path::PathBuf;
 use std::process::{Command, Output};

@@ -772,9 +772,10 @@ mod tests {
     use boucwen_core::rls::RlsConfig;
     use boucwen_core::signal::Oscillator;
     use boucwen_link::analog::NoFrontEnd;
-    use boucwen_link::device::{Device, OnChipPlant};
+    use boucwen_link::device::Device;
     use boucwen_link::excitation::{Excitation, Tone};
     use boucwen_link::message::{MAX_AR, PlantParams};
+    use boucwen_link::plant::OnChipPlant;
     use boucwen_link::{Decoder, Packet};
     use nalgebra::Complex;
     use std::sync::Arc;

@@ -506,7 +506,7 @@ pub const MAX_BACKOFF: u32 = 8;
 
 /// The driver board as a [`Plant`]: each [`Plant::step`] sends `Command{k, u[k]}` and waits
 /// for `Measurement{k, y[k]}` (the board's plant mode). On QEMU's `mps2-an386` the board's
-/// on-chip model ([`boucwen_link::device::OnChipPlant`], configured by [`PlantParams`])
+/// on-chip model ([`boucwen_link::plant::OnChipPlant`], configured by [`PlantParams`])
 /// stands for its DAC, actuator and sensor.
 ///
 /// A step whose answer does not come within the timeout is sent again, up to the number of
@@ -807,7 +807,7 @@ mod tests {
     use super::*;
     use boucwen_core::model::{BoucWenParams, ExtendedParams, HarmonicBranch};
     use boucwen_core::signal::Oscillator;
-    use boucwen_link::device::OnChipPlant;
+    use boucwen_link::plant::OnChipPlant;
     use std::sync::atomic::Ordering;
 
     fn plant_params() -> PlantParams {

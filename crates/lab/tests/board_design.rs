@@ -4,10 +4,10 @@
 
 use boucwen_core::model::{BoucWenParams, EnhancedParams, ExtendedParams, HarmonicBranch, Model};
 use boucwen_core::signal::Oscillator;
-use boucwen_lab::board_design::{
+use boucwen_lab::design::board::{
     BoardDesignError, DesignFile, DesignOptions, HarmonicChoice, design_from_records,
 };
-use boucwen_lab::experiment;
+use boucwen_lab::design::closed_loop;
 use boucwen_lab::record::Record;
 use boucwen_link::message::SafetyParams;
 use boucwen_sim::{Bimorph, Scenario};
@@ -36,7 +36,7 @@ fn record_of(name: &str, u: Vec<f64>, plant: &mut dyn FnMut(f64) -> f64) -> Reco
 fn on_chip_record(amplitude_v: f64, seconds: f64) -> Record {
     let p = actuator();
     let mut s = p.initial_state();
-    let u = experiment::sine(amplitude_v, 23.0, TS, (seconds / TS) as usize).unwrap();
+    let u = closed_loop::sine(amplitude_v, 23.0, TS, (seconds / TS) as usize).unwrap();
     record_of("on-chip.csv", u, &mut |v| p.step(&mut s, v))
 }
 
@@ -73,7 +73,7 @@ fn a_known_actuator_gives_its_model_harmonic_and_a_small_tracking_error() {
 fn the_virtual_bimorph_at_23_hz() {
     let scenario = Scenario::default();
     let mut b = Bimorph::new(&scenario).unwrap();
-    let u = experiment::sine(1.0, 23.0, TS, 6000).unwrap();
+    let u = closed_loop::sine(1.0, 23.0, TS, 6000).unwrap();
     let rec = record_of("bimorph.csv", u, &mut |v| b.step(v).unwrap());
     let opts = DesignOptions { amplitude_um: Some(20.0), ..DesignOptions::default() };
     let d = design_from_records(&[rec], &opts).unwrap();
@@ -173,7 +173,7 @@ fn a_design_file_that_is_not_right_is_refused_whole() {
     assert!(e.contains("host timeout"), "{e}");
     let e = DesignFile::parse(&text.replace("\"sample_period_us\": 1000", "\"sample_period_us\": -3"))
         .unwrap_err();
-    assert!(e.starts_with("invalid value: integer `-3`, expected u32"), "{e}");
+    assert!(e.starts_with("board.sample_period_us: invalid value: integer `-3`, expected u32"), "{e}");
 }
 
 #[test]

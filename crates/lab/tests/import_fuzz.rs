@@ -3,8 +3,8 @@
 //! message is one line (control characters shown as `?`) of under 600 bytes (every quoted
 //! field at most 24 characters, at most 8 columns listed).
 //!
-//! Cases per property: `PROPTEST_CASES` (proptest's default, 256; the README gives a longer
-//! run).
+//! Cases per property: `PROPTEST_CASES` (proptest's default, 256; the book's
+//! `docs/book/src/records.md` gives a longer run).
 
 use boucwen_lab::record::{ColumnMap, ImportOptions, LengthUnit, VoltUnit, import_text};
 use proptest::prelude::*;

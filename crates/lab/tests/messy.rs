@@ -1,15 +1,18 @@
-//! Records as they come from a bench ([`boucwen_lab::messy`]): each mess, read with the
+//! Records as they come from a bench ([`boucwen_lab::fixtures::messy`]): each mess, read with the
 //! flags a user would pass, diagnosed right by the rule of `diagnose_batch`.
 
-use boucwen_lab::diagnose::{self, Diagnosis, Kind, Thresholds};
-use boucwen_lab::hidden::Effect;
-use boucwen_lab::messy::{Mess, Messy};
+use boucwen_lab::diagnose::evidence::{Evidence, NotKept};
+use boucwen_lab::diagnose::{self, Diagnosis, Kind};
+use boucwen_lab::fixtures::hidden::Effect;
+use boucwen_lab::fixtures::messy::{Mess, Messy};
 use boucwen_lab::record::{ImportOptions, import_text};
+use boucwen_lab::report::diagnosis::{sine_json, sine_text};
+use boucwen_lab::rules::Rules;
 
 fn diagnosed(mess: Mess, effect: Effect, seed: u64) -> (Messy, Diagnosis) {
     let m = Messy::generate(mess, effect, seed).expect("a messy record");
     let r = import_text(&m.text, &m.file_name(), &m.opts).expect("read with the user's flags").record;
-    let d = diagnose::diagnose_record(&r.u, &r.y, r.ts, r.t0, None, &Thresholds::default())
+    let d = diagnose::diagnose_record(&r.u, &r.y, r.ts, r.t0, None, &Rules::default())
         .unwrap_or_else(|e| panic!("{}: {e}", m.file_name()));
     (m, d)
 }
@@ -37,7 +40,7 @@ fn idle_lead_in_and_a_step_onto_the_drive_are_left_out() {
         assert!(w0 >= m.drive_s.0 && w0 < m.drive_s.0 + 1.5, "{w0} vs drive from {}", m.drive_s.0);
         assert!(w1 <= m.drive_s.1 + 0.01 && w1 > m.drive_s.1 - 0.2, "{w1} vs drive to {}", m.drive_s.1);
         assert!(d.window.why.contains("idle or a different drive"), "{}", d.window.why);
-        let j = d.json();
+        let j = sine_json(&d, &Rules::default());
         assert_eq!(j["window_s"][0].as_f64(), Some(w0));
     }
 }
@@ -59,8 +62,8 @@ fn a_slow_drive_with_few_periods_is_diagnosed_on_whole_periods() {
     let r = import_text(&m.text, "slow.csv", &m.opts).unwrap().record;
     let p = (1.0 / (m.drive_hz * r.ts)) as usize;
     let cut = 3 * p + 300;
-    let e = diagnose::diagnose_record(&r.u[..cut], &r.y[..cut], r.ts, 0.0, None, &Thresholds::default())
-        .unwrap_err();
+    let e =
+        diagnose::diagnose_record(&r.u[..cut], &r.y[..cut], r.ts, 0.0, None, &Rules::default()).unwrap_err();
     let msg = e.to_string();
     assert!(msg.contains("holds 2 whole periods") || msg.contains("holds 3 whole periods"), "{msg}");
     assert!(msg.contains("diagnose needs at least 4 (half fitted, half held out)"), "{msg}");
@@ -117,16 +120,16 @@ fn a_drive_with_its_own_harmonics_is_a_sine_and_its_harmonics_are_not_the_actuat
     // distorted drive (clean seed 1) is said so instead of being diagnosed.
     let (_, d) = assert_right(Mess::DriveHarmonics, Effect::OddHarmonic(5), 1);
     assert!(d.drive.thd > 0.004 && d.drive.thd < 0.05, "{}", d.drive.thd);
-    assert!(d.summary("x").contains("own harmonic distortion"));
+    assert!(sine_text(&d, "x", &Rules::default()).contains("own harmonic distortion"));
     let mut diagnosed = 0;
     for seed in 1..=4 {
         let m = Messy::generate(Mess::DriveHarmonics, Effect::Clean, seed).unwrap();
         let r = import_text(&m.text, &m.file_name(), &m.opts).unwrap().record;
-        match diagnose::diagnose_record(&r.u, &r.y, r.ts, r.t0, None, &Thresholds::default()) {
+        match diagnose::diagnose_record(&r.u, &r.y, r.ts, r.t0, None, &Rules::default()) {
             Ok(d) => {
                 diagnosed += 1;
-                assert!(m.is_right(&d), "{}: {:?}", m.file_name(), d.findings.first().map(|f| &f.cause));
-                assert_eq!(d.drive.kind, boucwen_lab::steady::DriveKind::Sine);
+                assert!(m.is_right(&d), "{}: {:?}", m.file_name(), d.findings.first().map(|f| &f.evidence));
+                assert_eq!(d.drive.kind, boucwen_lab::signal::steady::DriveKind::Sine);
             }
             Err(e) => {
                 assert!(matches!(e, diagnose::DiagnoseError::Ratchets { .. }), "{}: {e}", m.file_name())
@@ -143,11 +146,18 @@ fn a_harmonic_the_drive_itself_accounts_for_is_not_blamed_on_the_actuator() {
     // the baseline) for half or more of the output's. No finding; the note says why.
     for seed in [5002, 5003] {
         let (_, d) = assert_right(Mess::DriveHarmonics, Effect::Clean, seed);
-        let note = d.drive_note.as_deref().expect("a note on the drive's harmonic");
-        assert!(note.contains("the drive itself carries") && note.contains("3rd harmonic"), "{note}");
+        let note = d.drive_note.as_ref().expect("a note on the drive's harmonic");
+        let NotKept::DriveHarmonic { order, share, drive_rel, .. } = *note else { panic!("{note:?}") };
+        assert_eq!(order, 3);
+        assert!(share >= Rules::default().sine.drive_share_max && drive_rel > 0.02, "{note:?}");
         let t = d.trials.iter().find(|t| t.candidate.order == Some(3)).expect("a 3rd harmonic trial");
         assert!(t.gain_pct >= 50.0 && !t.kept, "{t:?}");
-        assert_eq!(d.json()["drive_note"], note);
+        let j = sine_json(&d, &Rules::default());
+        assert!(
+            j["drive_note"].as_str().is_some_and(|n| n.contains("the drive itself carries")),
+            "{}",
+            j["drive_note"]
+        );
     }
     // Where the actuator's own 3rd harmonic is the larger part, it is still named.
     let (_, d) = assert_right(Mess::DriveHarmonics, Effect::OddHarmonic(3), 5016);
@@ -161,9 +171,10 @@ fn a_second_input_the_record_does_not_carry_is_named_and_not_diagnosed_further()
         assert_eq!(d.findings.len(), 1);
         assert!(d.trials.is_empty(), "no harmonic diagnosis on top of it");
         let fit = d.baseline_check.fit_pct.unwrap();
-        assert!(fit < diagnose::MIN_FIT_PCT, "{fit}");
-        assert!(d.findings[0].cause.contains("another input or a disturbance drives the output"));
-        assert_eq!(d.json()["findings"][0]["kind"], "other_input");
+        let min = Rules::default().checks.min_fit_pct;
+        assert!(fit < min, "{fit}");
+        assert_eq!(d.findings[0].evidence, Evidence::OtherInput { fit_pct: fit, min_fit_pct: min });
+        assert_eq!(sine_json(&d, &Rules::default())["findings"][0]["kind"], "other_input");
     }
 }
 
@@ -183,7 +194,7 @@ fn a_sensor_s_dropouts_are_repaired_on_reading_and_said_so() {
         let read = import_text(&m.text, &m.file_name(), &opts).unwrap();
         assert!(read.info.spikes.is_none());
         let r = read.record;
-        let kept = diagnose::diagnose_record(&r.u, &r.y, r.ts, r.t0, None, &Thresholds::default()).unwrap();
+        let kept = diagnose::diagnose_record(&r.u, &r.y, r.ts, r.t0, None, &Rules::default()).unwrap();
         assert!(kept.noise_um.0 > 10.0 * d.noise_um.0, "{} vs {}", kept.noise_um.0, d.noise_um.0);
     }
 }
@@ -207,12 +218,12 @@ fn every_trial_that_gained_enough_and_was_not_kept_is_listed_with_its_reason() {
         }
     }
     for l in &listed {
-        assert!(l.reason.as_deref().is_some_and(|r| !r.is_empty()));
+        assert!(l.reason.is_some(), "{l:?}");
     }
-    let text = d.summary("x");
+    let text = sine_text(&d, "x", &Rules::default());
     if !listed.is_empty() {
         assert!(text.contains("but were not kept"), "{text}");
     }
-    assert_eq!(d.json()["not_kept"].as_array().map(Vec::len), Some(listed.len()));
+    assert_eq!(sine_json(&d, &Rules::default())["not_kept"].as_array().map(Vec::len), Some(listed.len()));
     assert!(d.findings.iter().all(|f| f.kind != Kind::OtherInput));
 }

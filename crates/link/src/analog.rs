@@ -96,18 +96,18 @@ pub trait FrontEnd {
     fn drive(&mut self, u: f32) -> f32;
 }
 
-/// The on-chip simulated actuator: the board's plant model ([`super::device::OnChipPlant`])
+/// The on-chip simulated actuator: the board's plant model ([`crate::plant::OnChipPlant`])
 /// behind the seam, with ideal converters (no quantisation), so that the host computes the
 /// same outputs bit for bit.
 #[derive(Clone, Debug)]
 pub struct SimulatedActuator {
-    plant: super::device::OnChipPlant,
+    plant: crate::plant::OnChipPlant,
     y: Option<f32>,
 }
 
 impl SimulatedActuator {
     /// The actuator at rest.
-    pub fn new(plant: super::device::OnChipPlant) -> Self {
+    pub fn new(plant: crate::plant::OnChipPlant) -> Self {
         Self { plant, y: None }
     }
 }

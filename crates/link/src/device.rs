@@ -59,16 +59,17 @@
 use super::analog::{FrontEnd, SimulatedActuator};
 use super::excitation::{Active, BoardParams, Excitation, ExcitationParams};
 use super::frame::SeqTracker;
+use super::limits;
 use super::message::{
     ControllerParams, Diagnostics, Fault, FaultCode, MAX_AR, MAX_HARMONICS, Message, Mode, OrcParams,
     PlantParams, RunState, SafeReason, SafetyParams, Status, command_flags, kind,
 };
+use super::plant::OnChipPlant;
 use super::{Packet, WireError, encode};
 use boucwen_core::Error;
 use boucwen_core::compensator::{Compensator, CompensatorConfig, CompensatorOutput, HarmonicSpec};
 use boucwen_core::controllers::{ControlOutput, Controller as _, ORC_CAPACITY, OrcController};
 
-use boucwen_core::model::{EnhancedParams, EnhancedState, HarmonicBranch, Model};
 use boucwen_core::signal::sin_cos;
 use nalgebra::Complex;
 
@@ -242,32 +243,6 @@ impl Controller {
     }
 }
 
-/// The board's stand-in actuator: the core's enhanced model in `f32`.
-#[derive(Clone, Debug)]
-pub struct OnChipPlant {
-    model: EnhancedParams<f32, MAX_AR, 0, MAX_HARMONICS>,
-    state: EnhancedState<f32, MAX_AR, 0, MAX_HARMONICS>,
-}
-
-impl OnChipPlant {
-    /// The plant of `p` at rest. Unused branches are zero-weight branches of the second
-    /// harmonic (they add exactly zero).
-    pub fn new(p: &PlantParams) -> Result<Self, Error> {
-        let branches = core::array::from_fn(|m| p.branches.get(m).copied().unwrap_or(HarmonicBranch::new(2)));
-        let model = EnhancedParams { base: p.base, branches, drive: p.drive };
-        model.validate()?;
-        Ok(Self { state: model.initial_state(), model })
-    }
-
-    /// Applies `u[k]` (V), returns `y[k]` (µm).
-    #[inline]
-    pub fn step(&mut self, u: f32) -> f32 {
-        #[cfg(test)]
-        super::fuzz::PLANT_STEPS.with(|c| c.set(c.get() + 1));
-        self.model.step(&mut self.state, u)
-    }
-}
-
 /// Controller and on-chip plant in a loop: the firmware's self-test, and the host's
 /// reference computation of it.
 #[derive(Clone, Debug)]
@@ -359,67 +334,6 @@ impl OrcLoop {
     }
 }
 
-/// The ranges of every number the board takes from the wire. A value outside is refused
-/// (parameters: `Fault(InvalidParams)` naming it; samples: counted and not used), so no
-/// message can make the board compute for long, overflow a counter or drive a state to
-/// infinity.
-pub mod limits {
-    /// Sample period, µs: 100 µs (10 kHz) to 100 ms.
-    pub const SAMPLE_PERIOD_US: (u32, u32) = (100, 100_000);
-    /// Largest |y| taken from the host, µm (the sensor's range is far below).
-    pub const Y_MAX_UM: f32 = 1.0e5;
-    /// Largest |u| of any drive limit or saturation, V.
-    pub const U_MAX_V: f32 = 1000.0;
-    /// Largest reference amplitude, µm.
-    pub const AMPLITUDE_MAX_UM: f32 = 1.0e4;
-    /// Longest fade-in, samples.
-    pub const FADE_MAX_SAMPLES: u32 = 10_000_000;
-    /// Longest preview `τ` of the reference, samples (the host's fit considers input delays
-    /// up to 3 samples).
-    pub const PREVIEW_MAX_SAMPLES: f32 = 16.0;
-    /// Plant mode: most samples one command may skip (the plant steps that many with the
-    /// last input); a command further ahead is refused.
-    pub const MAX_CATCH_UP: u32 = 64;
-    /// Slew of the ramp to 0 V, V/s.
-    pub const SLEW_V_PER_S: (f32, f32) = (0.1, 1.0e5);
-    /// Host timeout, ms.
-    pub const HOST_TIMEOUT_MS: (u32, u32) = (10, 60_000);
-    /// Bad frames answered in a burst; after it, one answer per
-    /// [`FAULT_REFILL_TICKS`] ticks (the rest are counted, not answered).
-    pub const FAULT_BURST: u32 = 4;
-    /// Ticks per bad-frame answer once the burst is spent.
-    pub const FAULT_REFILL_TICKS: u32 = 10;
-    /// Lockstep run: most ticks a step waits for the previous sample's measurement before
-    /// it steps without it (20 ms at 1 kHz: a host that answers at all answers sooner, and
-    /// a lost frame costs no more than this).
-    pub const LOCKSTEP_PATIENCE_TICKS: u32 = 20;
-}
-
-/// Checks the numbers of a [`ControllerParams`] beyond what the compensator checks.
-fn check_controller(p: &ControllerParams) -> Result<(), Error> {
-    if cfg!(feature = "no-preview") && p.preview_samples != 0.0 {
-        return Err(Error::OutOfRange("preview (not built in: feature no-preview)"));
-    }
-    let (lo, hi) = limits::SAMPLE_PERIOD_US;
-    if !(lo..=hi).contains(&p.sample_period_us) {
-        return Err(Error::OutOfRange("sample period (100 µs to 100 ms)"));
-    }
-    if p.amplitude_um.is_nan() || p.amplitude_um.abs() > limits::AMPLITUDE_MAX_UM {
-        return Err(Error::OutOfRange("reference amplitude (at most 1e4 µm)"));
-    }
-    if p.fade_samples > limits::FADE_MAX_SAMPLES {
-        return Err(Error::OutOfRange("fade-in (at most 1e7 samples)"));
-    }
-    let s = &p.saturation;
-    if !(s.u_min.abs() <= limits::U_MAX_V && s.u_max.abs() <= limits::U_MAX_V) {
-        return Err(Error::OutOfRange("saturation (at most 1000 V)"));
-    }
-    if p.uc_max.is_nan() || p.uc_max > limits::U_MAX_V {
-        return Err(Error::OutOfRange("uc_max (at most 1000 V)"));
-    }
-    Ok(())
-}
-
 /// Checks a [`SafetyParams`].
 pub fn check_safety(p: &SafetyParams) -> Result<(), Error> {
     if !(p.u_min <= 0.0 && p.u_min >= -limits::U_MAX_V) {
@@ -475,10 +389,12 @@ struct OrcCtl {
 
 /// One step of either controller: `(k, u, flags)`.
 impl Ctl {
+    /// The run's controller, `p` checked by [`ControllerParams::validate`] (the host's
+    /// check too).
     fn new(p: &ControllerParams, _orc: Option<&OrcParams>) -> Result<Self, Error> {
-        check_controller(p)?;
         #[cfg(feature = "orc")]
         if let Some(o) = _orc {
+            p.validate()?;
             let (pi, orc) = o.configs(p);
             return Ok(Ctl::Orc(OrcCtl {
                 reference: Reference::new(p),

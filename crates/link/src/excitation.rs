@@ -1,4 +1,6 @@
-//! The board as data acquisition, and what it reports of its parameters.
+//! The board as data acquisition: the excitation generator, and what it reports of its
+//! parameters. The parameters are wire payloads, defined with the other messages in
+//! [`crate::message`] and re-exported here.
 //!
 //! * [`ExcitationParams`] ([`super::Message::SetExcitation`]): a sum of up to
 //!   [`MAX_TONES`] sines, faded in, that the board drives instead of its controller in the
@@ -15,124 +17,15 @@
 //! ```
 //! with the raised-cosine fade-in `w[k] = ½ − ½·cos(π k / K)` for `k < K` (`w = 1` after,
 //! as the reference of a control run). `f_i` is the core's integer phase increment
-//! ([`Oscillator`]), `φ_i` a phase in units of 2⁻³² turn, `a_i` in V. The board checks
+//! ([`boucwen_core::signal::Oscillator`]), `φ_i` a phase in units of 2⁻³² turn, `a_i` in V. The board checks
 //! ([`ExcitationParams::validate`]): 1 to [`MAX_TONES`] tones, every amplitude finite,
-//! `Σ|a_i|` at most [`super::device::limits::U_MAX_V`], the sample period and the fade in
+//! `Σ|a_i|` at most [`crate::limits::U_MAX_V`], the sample period and the fade in
 //! the ranges of a control run. The drive limits ([`super::message::SafetyParams`]) clamp
 //! the result like any drive (flagged [`super::message::command_flags::LIMITED`]).
 
-use super::WireError;
-use super::device::limits;
-use super::message::{ControllerParams, Reader, SafetyParams, Writer};
+pub use crate::message::{Active, BoardParams, ExcitationParams, MAX_TONES, Tone};
 use boucwen_core::Error;
-use boucwen_core::signal::{Oscillator, sin_cos};
-use heapless::Vec;
-
-/// Most tones of an excitation.
-pub const MAX_TONES: usize = 6;
-
-/// One tone of an excitation: `amplitude_v · sin(2π f k Ts + φ)`.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Tone {
-    /// Its frequency: phase increment per sample.
-    pub drive: Oscillator,
-    /// Amplitude, V.
-    pub amplitude_v: f32,
-    /// Phase at `k = 0`, in 2⁻³² turn.
-    pub phase: u32,
-}
-
-/// What the board drives in an excitation run.
-#[derive(Clone, Debug, PartialEq)]
-pub struct ExcitationParams {
-    /// The sample period, µs.
-    pub sample_period_us: u32,
-    /// Length of the raised-cosine fade-in, samples (0: none).
-    pub fade_samples: u32,
-    /// The tones (1 to [`MAX_TONES`]).
-    pub tones: Vec<Tone, MAX_TONES>,
-}
-
-/// Payload length of [`ExcitationParams`] on the wire.
-pub(crate) const EXCITATION_LEN: usize = 4 + 4 + 1 + MAX_TONES * 16;
-
-impl ExcitationParams {
-    /// Checks the parameters as the board does before it accepts them (the error names
-    /// the parameter).
-    ///
-    /// ```
-    /// use boucwen_core::signal::Oscillator;
-    /// use boucwen_link::excitation::{ExcitationParams, Tone};
-    /// let tone = Tone { drive: Oscillator::new(23.0, 1e-3)?, amplitude_v: 1.0, phase: 0 };
-    /// let mut p = ExcitationParams { sample_period_us: 1000, fade_samples: 500, tones: [tone].into_iter().collect() };
-    /// assert!(p.validate().is_ok());
-    /// p.tones[0].amplitude_v = f32::NAN;
-    /// assert!(p.validate().is_err());
-    /// # Ok::<(), boucwen_core::Error>(())
-    /// ```
-    pub fn validate(&self) -> Result<(), Error> {
-        let (lo, hi) = limits::SAMPLE_PERIOD_US;
-        if !(lo..=hi).contains(&self.sample_period_us) {
-            return Err(Error::OutOfRange("sample period (100 µs to 100 ms)"));
-        }
-        if self.fade_samples > limits::FADE_MAX_SAMPLES {
-            return Err(Error::OutOfRange("fade-in (at most 1e7 samples)"));
-        }
-        if self.tones.is_empty() {
-            return Err(Error::OutOfRange("excitation tones (at least one)"));
-        }
-        let mut sum = 0.0f32;
-        for t in &self.tones {
-            if !t.amplitude_v.is_finite() {
-                return Err(Error::NonFinite("excitation amplitude"));
-            }
-            sum += t.amplitude_v.abs();
-        }
-        // Every amplitude is finite, so the sum is not NaN (an overflow to ∞ is caught).
-        if sum > limits::U_MAX_V {
-            return Err(Error::OutOfRange("excitation amplitude (sum at most 1000 V)"));
-        }
-        Ok(())
-    }
-
-    pub(crate) fn write(&self, w: &mut Writer<'_>) -> Result<(), WireError> {
-        if self.tones.len() > MAX_TONES {
-            return Err(WireError::BadValue("tone count"));
-        }
-        w.u32(self.sample_period_us)?;
-        w.u32(self.fade_samples)?;
-        w.u8(self.tones.len() as u8)?;
-        for m in 0..MAX_TONES {
-            match self.tones.get(m) {
-                Some(t) => {
-                    w.u64(t.drive.increment())?;
-                    w.f32(t.amplitude_v)?;
-                    w.u32(t.phase)?;
-                }
-                None => w.bytes(&[0; 16])?,
-            }
-        }
-        Ok(())
-    }
-
-    pub(crate) fn read(r: &mut Reader<'_>) -> Result<Self, WireError> {
-        let sample_period_us = r.u32()?;
-        let fade_samples = r.u32()?;
-        let n = r.u8()? as usize;
-        if n > MAX_TONES {
-            return Err(WireError::BadValue("tone count"));
-        }
-        let mut tones = Vec::new();
-        for m in 0..MAX_TONES {
-            let (inc, amplitude_v, phase) = (r.u64()?, r.f32()?, r.u32()?);
-            if m < n {
-                // m < n <= MAX_TONES: the push cannot fail.
-                let _ = tones.push(Tone { drive: Oscillator::from_increment(inc), amplitude_v, phase });
-            }
-        }
-        Ok(Self { sample_period_us, fade_samples, tones })
-    }
-}
+use boucwen_core::signal::sin_cos;
 
 /// The excitation generator: `u[k]` of [`ExcitationParams`], sample by sample, with the
 /// same bits on every target.
@@ -181,74 +74,15 @@ impl Excitation {
     }
 }
 
-/// What runs on the board's next [`super::Message::Start`].
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Active {
-    /// Nothing configured.
-    None = 0,
-    /// The controller of [`super::Message::SetController`] (or the ORC on it).
-    Controller = 1,
-    /// The excitation of [`super::Message::SetExcitation`].
-    Excitation = 2,
-}
-
-/// The parameters in force on the board ([`super::Message::Params`]).
-#[derive(Clone, Debug, PartialEq)]
-pub struct BoardParams {
-    /// What the next run computes: the last of `SetController` and `SetExcitation` accepted.
-    pub active: Active,
-    /// The controller's parameters, as the board holds them.
-    pub controller: Option<ControllerParams>,
-    /// The drive limits and safe state.
-    pub safety: SafetyParams,
-}
-
-/// Payload length of [`BoardParams`] on the wire.
-pub(crate) const PARAMS_LEN: usize = 1 + 1 + super::message::CONTROLLER_LEN + super::message::SAFETY_LEN;
-
-impl BoardParams {
-    pub(crate) fn write(&self, w: &mut Writer<'_>) -> Result<(), WireError> {
-        w.u8(self.active as u8)?;
-        match &self.controller {
-            Some(c) => {
-                w.u8(1)?;
-                c.write(w)?;
-            }
-            None => {
-                w.u8(0)?;
-                w.bytes(&[0; super::message::CONTROLLER_LEN])?;
-            }
-        }
-        self.safety.write(w)
-    }
-
-    pub(crate) fn read(r: &mut Reader<'_>) -> Result<Self, WireError> {
-        let active = match r.u8()? {
-            0 => Active::None,
-            1 => Active::Controller,
-            2 => Active::Excitation,
-            _ => return Err(WireError::BadValue("active parameters")),
-        };
-        let controller = match r.u8()? {
-            0 => {
-                r.take::<{ super::message::CONTROLLER_LEN }>()?;
-                None
-            }
-            1 => Some(ControllerParams::read(r)?),
-            _ => return Err(WireError::BadValue("controller present")),
-        };
-        Ok(Self { active, controller, safety: SafetyParams::read(r)? })
-    }
-}
-
-const _: () = assert!(EXCITATION_LEN <= super::frame::MAX_PAYLOAD && PARAMS_LEN <= super::frame::MAX_PAYLOAD);
-
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::WireError;
+    use crate::message::EXCITATION_LEN;
     use crate::message::Message;
     use crate::tests::controller_params;
     use crate::{Decoder, encode};
+    use boucwen_core::signal::Oscillator;
     use std::vec::Vec as StdVec;
 
     fn params(tones: &[(f64, f32, u32)]) -> ExcitationParams {
@@ -389,7 +223,7 @@ mod tests {
         // The run drives the excitation, bit for bit the host's generator, into the on-chip
         // actuator, whose outputs come back as the measurements.
         let mut generator = Excitation::new(&e).unwrap();
-        let mut plant = crate::device::OnChipPlant::new(&crate::tests::plant_params()).unwrap();
+        let mut plant = crate::plant::OnChipPlant::new(&crate::tests::plant_params()).unwrap();
         let mut y_prev = f32::NAN;
         for k in 0..300u32 {
             // The host keeps the board from declaring it lost.

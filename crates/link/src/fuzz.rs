@@ -27,9 +27,11 @@
 //! (the bound computed from the safety parameters in force).
 
 use super::analog::FrontEnd;
-use super::device::{Device, limits};
+use super::device::Device;
 use super::frame::MAX_ENCODED;
+use super::limits;
 use super::message::*;
+use super::plant::PLANT_STEPS;
 use super::tests::{controller_params, plant_params};
 use super::{Decoder, Packet, encode};
 use boucwen_core::compensator::HarmonicSpec;
@@ -46,11 +48,6 @@ use std::vec::Vec;
 pub const DEFAULT_CASES: u32 = 300;
 /// Most frames one packet or one tick may make the board send.
 pub const MAX_FRAMES_OUT: usize = 2;
-
-std::thread_local! {
-    /// Steps of the on-chip plant (counted by `OnChipPlant::step` in tests).
-    pub(crate) static PLANT_STEPS: Cell<u64> = const { Cell::new(0) };
-}
 
 fn cases() -> u32 {
     std::env::var("BOUCWEN_FUZZ_CASES").ok().and_then(|v| v.parse().ok()).unwrap_or(DEFAULT_CASES)
@@ -546,6 +543,33 @@ fn fuzz_fields_board_never_panics_stalls_or_drives_out_of_range() {
         b.still_alive(tried)
     });
     report("fields", &tried.borrow());
+    if let Err(e) = result {
+        panic!("{e}");
+    }
+}
+
+/// What the host's check accepts the board accepts, and the other way round: a controller
+/// with hostile fields is acknowledged by [`Device`] exactly when
+/// [`ControllerParams::validate`] passes it (the host validates with it before it sends or
+/// writes parameters).
+#[test]
+fn fuzz_the_board_accepts_exactly_what_the_host_check_accepts() {
+    let mut runner = TestRunner::new(Config::with_cases(4 * cases()));
+    let result = runner.run(&controller(), |p| {
+        let host = p.validate();
+        let mut dev = Device::new();
+        let mut out = Vec::new();
+        let mut sink = |bytes: &[u8]| {
+            let mut d = Decoder::new();
+            out.extend(bytes.iter().filter_map(|&b| d.push(b)).filter_map(Result::ok).map(|p| p.msg));
+        };
+        dev.on_packet(Ok(Packet { seq: 0, msg: Message::SetController(p.clone()) }), &mut sink);
+        let board_ok = matches!(out[..], [Message::Ack { .. }]);
+        if host.is_ok() != board_ok {
+            return Err(fail(format!("host {host:?}, board {out:?} for {p:?}")));
+        }
+        Ok(())
+    });
     if let Err(e) = result {
         panic!("{e}");
     }

@@ -51,7 +51,9 @@ pub mod crc;
 pub mod device;
 pub mod excitation;
 pub mod frame;
+pub mod limits;
 pub mod message;
+pub mod plant;
 
 use core::fmt;
 use frame::{EncodedFrame, FrameDecoder, MAX_PAYLOAD};

@@ -26,12 +26,12 @@
 //! cross the link bit for bit); `u64` phase increments are the core's
 //! [`Oscillator`] units (2⁻⁶⁴ turn per sample). A payload must have exactly its layout's
 //! length; enumerations and counts are range-checked here; the ranges of the numbers are
-//! the board's to check ([`super::device::limits`]), so a decoded message can still hold a
+//! the board's to check ([`crate::limits`]), so a decoded message can still hold a
 //! value the board refuses.
 
 use super::WireError;
-use super::excitation::{BoardParams, ExcitationParams};
 use super::frame::MAX_PAYLOAD;
+use super::limits;
 use boucwen_core::Error;
 use boucwen_core::compensator::{CompensatorConfig, DirectInverse, HarmonicSpec, Saturation};
 use boucwen_core::controllers::{OrcConfig, OrcPlacement, PiConfig};
@@ -75,15 +75,25 @@ pub struct ControllerParams {
     /// The preview `τ`, samples (the identified model's input delay): the inverse works on
     /// the reference `τ` samples ahead, `d(k + τ)`, the tracking error on `d[k]`
     /// ([`boucwen_core::compensator::Compensator::step_previewed`]). 0 (no preview) to
-    /// [`super::device::limits::PREVIEW_MAX_SAMPLES`], resolved to 2⁻¹⁶ sample on the board.
+    /// [`crate::limits::PREVIEW_MAX_SAMPLES`], resolved to 2⁻¹⁶ sample on the board.
     pub preview_samples: f32,
 }
 
 impl ControllerParams {
-    /// Checks the parameters as the board does before it accepts them: a non-zero sample
-    /// period, a finite amplitude, an invertible model, and each cancelled harmonic, RLS
-    /// setting and range as the core's compensator checks them (the error names the
-    /// parameter).
+    /// Checks the parameters as the board does before it accepts them (`SetController`
+    /// answers `Fault(InvalidParams)` with this error), and as the host does before it
+    /// sends or writes them: this is the one check of both ends. Every number within the
+    /// board's [`limits`] (sample period, amplitude, fade-in,
+    /// preview, saturation, `uc_max`); a model the direct inverse can use (a gain `A1` of at
+    /// least [`MIN_GAIN_UM_PER_V`](crate::limits::MIN_GAIN_UM_PER_V) in size, and the
+    /// static part `A1·u − h` moving with `u` the way `A1` does on both branches at rest,
+    /// `sign(A1)·(A1 − A ∓ A0) ≥`
+    /// [`MIN_SLOPE_AT_REST`](crate::limits::MIN_SLOPE_AT_REST)`·|A1|`, where every
+    /// run starts); and each cancelled harmonic, RLS setting and range as the core's
+    /// compensator checks them. The error names the parameter.
+    ///
+    /// A model that fails the inverse's condition (`A1 = 0`: `bouc_wen = [0, 0, 0, 0, 0]`)
+    /// would drive the actuator to a saturation bound and hold it there, without a fault.
     ///
     /// ```
     /// use boucwen_core::compensator::Saturation;
@@ -111,17 +121,33 @@ impl ControllerParams {
     /// assert!(p.validate().is_err());
     /// # Ok::<(), boucwen_core::Error>(())
     /// ```
+    #[allow(clippy::neg_cmp_op_on_partial_ord, reason = "NaN must fail the checks, as `!(x <= max)` does")]
     pub fn validate(&self) -> Result<(), Error> {
-        if self.sample_period_us == 0 {
-            return Err(Error::OutOfRange("sample period (must be > 0 µs)"));
+        if cfg!(feature = "no-preview") && self.preview_samples != 0.0 {
+            return Err(Error::OutOfRange("preview (not built in: feature no-preview)"));
+        }
+        let (lo, hi) = limits::SAMPLE_PERIOD_US;
+        if !(lo..=hi).contains(&self.sample_period_us) {
+            return Err(Error::OutOfRange("sample period (100 µs to 100 ms)"));
         }
         if !self.amplitude_um.is_finite() {
             return Err(Error::NonFinite("reference amplitude"));
         }
-        if !(self.preview_samples >= 0.0
-            && self.preview_samples <= super::device::limits::PREVIEW_MAX_SAMPLES)
-        {
+        if self.amplitude_um.abs() > limits::AMPLITUDE_MAX_UM {
+            return Err(Error::OutOfRange("reference amplitude (at most 1e4 µm)"));
+        }
+        if self.fade_samples > limits::FADE_MAX_SAMPLES {
+            return Err(Error::OutOfRange("fade-in (at most 1e7 samples)"));
+        }
+        if !(self.preview_samples >= 0.0 && self.preview_samples <= limits::PREVIEW_MAX_SAMPLES) {
             return Err(Error::OutOfRange("preview (0 to 16 samples)"));
+        }
+        let s = &self.saturation;
+        if !(s.u_min.abs() <= limits::U_MAX_V && s.u_max.abs() <= limits::U_MAX_V) {
+            return Err(Error::OutOfRange("saturation (at most 1000 V)"));
+        }
+        if !(self.uc_max <= limits::U_MAX_V) {
+            return Err(Error::OutOfRange("uc_max (at most 1000 V)"));
         }
         let base = CompensatorConfig::<f32, MAX_AR, 0> {
             model: self.model,
@@ -133,6 +159,7 @@ impl ControllerParams {
         };
         base.validate()?;
         DirectInverse::new(self.model)?;
+        check_invertible(&self.model.bw)?;
         for &h in &self.harmonics {
             CompensatorConfig::<f32, MAX_AR, 1> {
                 model: base.model,
@@ -146,6 +173,27 @@ impl ControllerParams {
         }
         Ok(())
     }
+}
+
+/// The direct inverse's condition on the model (see [`ControllerParams::validate`]): a
+/// gain `A1` the inverse can divide by, and a static part `A1·u − h` that moves with `u` the
+/// way `A1` does on both branches at rest (`h = 0`). A sensor counting the stroke downwards
+/// gives the mirrored model (`A1 < 0`), which passes as its mirror does.
+#[allow(clippy::neg_cmp_op_on_partial_ord, reason = "NaN must fail the checks, as `!(x >= min)` does")]
+fn check_invertible(bw: &BoucWenParams<f32>) -> Result<(), Error> {
+    if !(bw.a1.abs() >= limits::MIN_GAIN_UM_PER_V) {
+        return Err(Error::OutOfRange("model gain A1 (the inverse divides by it: |A1| at least 1e-6 µm/V)"));
+    }
+    let sign = if bw.a1 > 0.0 { 1.0 } else { -1.0 };
+    for rising in [true, false] {
+        let slope = sign * (bw.a1 - bw.slope(0.0, rising));
+        if !(slope >= limits::MIN_SLOPE_AT_REST * bw.a1.abs()) {
+            return Err(Error::OutOfRange(
+                "model's slope at rest (not invertible: A1 − A ∓ A0 must have A1's sign, ≥ 1e-3·|A1|)",
+            ));
+        }
+    }
+    Ok(())
 }
 
 /// The on-chip plant of the self-test and of the board's plant mode: the core's enhanced
@@ -252,7 +300,7 @@ pub enum Mode {
     Local = 4,
     /// A [`Mode::Control`] run in lockstep with its host: a tick whose step would run
     /// without the previous sample's measurement waits for it, at most
-    /// [`super::device::limits::LOCKSTEP_PATIENCE_TICKS`] ticks, then steps without it as
+    /// [`crate::limits::LOCKSTEP_PATIENCE_TICKS`] ticks, then steps without it as
     /// a control run does at once. For hardware in the loop with a simulated actuator on a
     /// host that is not real-time (or a board in an emulator whose clock follows the
     /// host's): the plant's time is the sample index, not the wall clock, so a late answer
@@ -1062,3 +1110,174 @@ impl Message {
 
 const _: () = assert!(CONTROLLER_LEN == 99 && PLANT_LEN == 59 && STATUS_LEN == 50 && ORC_LEN == 27);
 const _: () = assert!(SAFETY_LEN == 16 && DIAGNOSTICS_LEN == 78 && DIAGNOSTICS_LEN <= MAX_PAYLOAD);
+
+// The board as data acquisition ([`crate::excitation`] runs it) and what it reports of its
+// parameters.
+
+/// Most tones of an excitation.
+pub const MAX_TONES: usize = 6;
+
+/// One tone of an excitation: `amplitude_v · sin(2π f k Ts + φ)`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Tone {
+    /// Its frequency: phase increment per sample.
+    pub drive: Oscillator,
+    /// Amplitude, V.
+    pub amplitude_v: f32,
+    /// Phase at `k = 0`, in 2⁻³² turn.
+    pub phase: u32,
+}
+
+/// What the board drives in an excitation run.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ExcitationParams {
+    /// The sample period, µs.
+    pub sample_period_us: u32,
+    /// Length of the raised-cosine fade-in, samples (0: none).
+    pub fade_samples: u32,
+    /// The tones (1 to [`MAX_TONES`]).
+    pub tones: Vec<Tone, MAX_TONES>,
+}
+
+/// Payload length of [`ExcitationParams`] on the wire.
+pub(crate) const EXCITATION_LEN: usize = 4 + 4 + 1 + MAX_TONES * 16;
+
+impl ExcitationParams {
+    /// Checks the parameters as the board does before it accepts them (the error names
+    /// the parameter).
+    ///
+    /// ```
+    /// use boucwen_core::signal::Oscillator;
+    /// use boucwen_link::excitation::{ExcitationParams, Tone};
+    /// let tone = Tone { drive: Oscillator::new(23.0, 1e-3)?, amplitude_v: 1.0, phase: 0 };
+    /// let mut p = ExcitationParams { sample_period_us: 1000, fade_samples: 500, tones: [tone].into_iter().collect() };
+    /// assert!(p.validate().is_ok());
+    /// p.tones[0].amplitude_v = f32::NAN;
+    /// assert!(p.validate().is_err());
+    /// # Ok::<(), boucwen_core::Error>(())
+    /// ```
+    pub fn validate(&self) -> Result<(), Error> {
+        let (lo, hi) = limits::SAMPLE_PERIOD_US;
+        if !(lo..=hi).contains(&self.sample_period_us) {
+            return Err(Error::OutOfRange("sample period (100 µs to 100 ms)"));
+        }
+        if self.fade_samples > limits::FADE_MAX_SAMPLES {
+            return Err(Error::OutOfRange("fade-in (at most 1e7 samples)"));
+        }
+        if self.tones.is_empty() {
+            return Err(Error::OutOfRange("excitation tones (at least one)"));
+        }
+        let mut sum = 0.0f32;
+        for t in &self.tones {
+            if !t.amplitude_v.is_finite() {
+                return Err(Error::NonFinite("excitation amplitude"));
+            }
+            sum += t.amplitude_v.abs();
+        }
+        // Every amplitude is finite, so the sum is not NaN (an overflow to ∞ is caught).
+        if sum > limits::U_MAX_V {
+            return Err(Error::OutOfRange("excitation amplitude (sum at most 1000 V)"));
+        }
+        Ok(())
+    }
+
+    pub(crate) fn write(&self, w: &mut Writer<'_>) -> Result<(), WireError> {
+        if self.tones.len() > MAX_TONES {
+            return Err(WireError::BadValue("tone count"));
+        }
+        w.u32(self.sample_period_us)?;
+        w.u32(self.fade_samples)?;
+        w.u8(self.tones.len() as u8)?;
+        for m in 0..MAX_TONES {
+            match self.tones.get(m) {
+                Some(t) => {
+                    w.u64(t.drive.increment())?;
+                    w.f32(t.amplitude_v)?;
+                    w.u32(t.phase)?;
+                }
+                None => w.bytes(&[0; 16])?,
+            }
+        }
+        Ok(())
+    }
+
+    pub(crate) fn read(r: &mut Reader<'_>) -> Result<Self, WireError> {
+        let sample_period_us = r.u32()?;
+        let fade_samples = r.u32()?;
+        let n = r.u8()? as usize;
+        if n > MAX_TONES {
+            return Err(WireError::BadValue("tone count"));
+        }
+        let mut tones = Vec::new();
+        for m in 0..MAX_TONES {
+            let (inc, amplitude_v, phase) = (r.u64()?, r.f32()?, r.u32()?);
+            if m < n {
+                // m < n <= MAX_TONES: the push cannot fail.
+                let _ = tones.push(Tone { drive: Oscillator::from_increment(inc), amplitude_v, phase });
+            }
+        }
+        Ok(Self { sample_period_us, fade_samples, tones })
+    }
+}
+
+/// What runs on the board's next [`super::Message::Start`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Active {
+    /// Nothing configured.
+    None = 0,
+    /// The controller of [`super::Message::SetController`] (or the ORC on it).
+    Controller = 1,
+    /// The excitation of [`super::Message::SetExcitation`].
+    Excitation = 2,
+}
+
+/// The parameters in force on the board ([`super::Message::Params`]).
+#[derive(Clone, Debug, PartialEq)]
+pub struct BoardParams {
+    /// What the next run computes: the last of `SetController` and `SetExcitation` accepted.
+    pub active: Active,
+    /// The controller's parameters, as the board holds them.
+    pub controller: Option<ControllerParams>,
+    /// The drive limits and safe state.
+    pub safety: SafetyParams,
+}
+
+/// Payload length of [`BoardParams`] on the wire.
+pub(crate) const PARAMS_LEN: usize = 1 + 1 + CONTROLLER_LEN + super::message::SAFETY_LEN;
+
+impl BoardParams {
+    pub(crate) fn write(&self, w: &mut Writer<'_>) -> Result<(), WireError> {
+        w.u8(self.active as u8)?;
+        match &self.controller {
+            Some(c) => {
+                w.u8(1)?;
+                c.write(w)?;
+            }
+            None => {
+                w.u8(0)?;
+                w.bytes(&[0; CONTROLLER_LEN])?;
+            }
+        }
+        self.safety.write(w)
+    }
+
+    pub(crate) fn read(r: &mut Reader<'_>) -> Result<Self, WireError> {
+        let active = match r.u8()? {
+            0 => Active::None,
+            1 => Active::Controller,
+            2 => Active::Excitation,
+            _ => return Err(WireError::BadValue("active parameters")),
+        };
+        let controller = match r.u8()? {
+            0 => {
+                r.take::<{ CONTROLLER_LEN }>()?;
+                None
+            }
+            1 => Some(ControllerParams::read(r)?),
+            _ => return Err(WireError::BadValue("controller present")),
+        };
+        Ok(Self { active, controller, safety: SafetyParams::read(r)? })
+    }
+}
+
+const _: () = assert!(EXCITATION_LEN <= MAX_PAYLOAD && PARAMS_LEN <= MAX_PAYLOAD);

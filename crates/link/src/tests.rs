@@ -2,9 +2,11 @@
 //! panic and never yield a wrong packet, and the board's state machine follows its table.
 
 use super::analog::NoFrontEnd;
-use super::device::{ClosedLoop, Controller, Device, OnChipPlant, Reference, TimerRequest, limits};
+use super::device::{ClosedLoop, Controller, Device, Reference, TimerRequest};
 use super::frame::{MAX_ENCODED, MAX_PAYLOAD};
+use super::limits;
 use super::message::*;
+use super::plant::OnChipPlant;
 use super::*;
 use boucwen_core::compensator::{HarmonicSpec, Saturation};
 use boucwen_core::controllers::OrcPlacement;
@@ -703,6 +705,73 @@ fn a_plant_input_outside_the_drive_limits_is_refused_and_outputs_stay_finite() {
             other => panic!("{other:?}"),
         }
     }
+}
+
+/// The board's check of a controller is `ControllerParams::validate`, the host's too: what
+/// one refuses the other refuses, naming the same field (the host's design file used to
+/// pass values the board then refused: issue 29, item 1).
+#[test]
+fn the_host_check_is_the_board_check() {
+    type Change = fn(&mut ControllerParams);
+    let cases: [(Change, &str); 8] = [
+        (|p| p.sample_period_us = 50, "sample period"),
+        (|p| p.fade_samples = u32::MAX, "fade-in"),
+        (|p| p.amplitude_um = 1e6, "reference amplitude"),
+        (|p| p.saturation = Saturation { u_min: -1e6, u_max: 1e6 }, "saturation"),
+        (|p| p.uc_max = 1e6, "uc_max"),
+        (|p| p.uc_max = f32::INFINITY, "uc_max"),
+        (|p| p.model.bw = BoucWenParams { a1: 0.0, a: 0.0, a0: 0.0, gamma: 0.0, beta: 0.0 }, "model gain A1"),
+        (|p| p.model.bw.a = 25.0, "not invertible"),
+    ];
+    for (change, field) in cases {
+        let mut p = controller_params(&[]);
+        change(&mut p);
+        let host = p.validate().expect_err(field).to_string();
+        assert!(host.contains(field), "{host} vs {field}");
+        let mut b = Bench::new();
+        b.send(Message::SetController(p));
+        match &b.take()[..] {
+            [Message::Fault(f)] => {
+                assert_eq!(f.code, FaultCode::InvalidParams);
+                assert!(host.starts_with(f.text.as_str()), "board {:?}, host {host:?}", f.text);
+            }
+            other => panic!("{field}: {other:?}"),
+        }
+    }
+}
+
+/// A model the direct inverse cannot use is refused with the reason (issue 29, item 2):
+/// `bouc_wen = [0, 0, 0, 0, 0]` used to load and hold the drive at a saturation bound; a
+/// loop whose static part falls as `u` rises at rest (`A1 − A − A0 < 0`) too. The mirrored
+/// model of a sensor counting the stroke downwards passes, and the inverse works on it.
+#[test]
+fn a_model_the_inverse_cannot_use_is_refused_with_the_reason() {
+    let zero = ControllerParams {
+        model: ExtendedParams { bw: BoucWenParams::default(), ar: [0.0; MAX_AR] },
+        ..controller_params(&[])
+    };
+    let e = zero.validate().unwrap_err().to_string();
+    assert!(e.starts_with("model gain A1 (the inverse divides by it"), "{e}");
+    assert!(Controller::new(&zero).is_err());
+    for (a1, a, a0) in [(20.0, 25.0, 0.0), (20.0, 6.0, 14.5), (20.0, 6.0, -14.5), (1e-9, 0.0, 0.0)] {
+        let mut p = controller_params(&[]);
+        (p.model.bw.a1, p.model.bw.a, p.model.bw.a0) = (a1, a, a0);
+        assert!(p.validate().is_err(), "A1 {a1}, A {a}, A0 {a0} accepted");
+    }
+    let mut mirrored = controller_params(&[]);
+    let bw = mirrored.model.bw;
+    mirrored.model.bw = BoucWenParams { a1: -bw.a1, a: -bw.a, a0: -bw.a0, gamma: -bw.gamma, beta: bw.beta };
+    assert_eq!(mirrored.validate(), Ok(()));
+    let mut c = Controller::new(&mirrored).unwrap();
+    let mut b = Bench::new();
+    b.send(Message::SetController(mirrored));
+    assert!(matches!(&b.take()[..], [Message::Ack { .. }]));
+    // Its inverse drives within the range, never sitting at a bound.
+    let mut u_max = 0.0f32;
+    for _ in 0..1000 {
+        u_max = u_max.max(c.step(None).unwrap().out.u.abs());
+    }
+    assert!(u_max > 0.0 && u_max < 9.0, "{u_max} V");
 }
 
 #[test]

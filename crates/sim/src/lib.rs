@@ -87,11 +87,13 @@
 //! | [`scenario`] | the parameters, TOML reading, validation, switches for tests |
 //! | [`bimorph`] | the plant: [`Bimorph::step`], [`Bimorph::step_detail`], [`Bimorph::run`] |
 //! | [`measure`] | least-squares harmonic fit of a record (amplitude and phase per order) |
+//! | [`oscillator`] | the Bouc–Wen oscillator of the Noël–Schoukens benchmark, its integrator, decimation and inputs |
 
 pub mod bimorph;
 mod error;
 mod hysteresis;
 pub mod measure;
+pub mod oscillator;
 mod rng;
 pub mod scenario;
 

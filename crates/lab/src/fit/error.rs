@@ -1,6 +1,6 @@
 //! Why a fit failed.
 
-use super::MAX_BRANCHES;
+use crate::model::ModelError;
 use std::fmt;
 
 /// Why a fit failed.
@@ -13,12 +13,9 @@ pub enum FitError {
         /// Samples needed.
         need: usize,
     },
-    /// A harmonic at or above Nyquist, or an order below 2.
-    BadHarmonic(u32),
-    /// More branches than supported.
-    TooManyBranches(usize),
-    /// A core error (parameters, frequencies).
-    Core(boucwen_core::Error),
+    /// The model asked for cannot be built or run (a harmonic at or above Nyquist, too many
+    /// branches, a core parameter).
+    Model(ModelError),
     /// No candidate gave a stable model that could be solved.
     NoStableModel,
 }
@@ -29,11 +26,7 @@ impl fmt::Display for FitError {
             FitError::TooFewSamples { have, need } => {
                 write!(f, "too few samples to fit: {have} available, at least {need} needed")
             }
-            FitError::BadHarmonic(n) => write!(f, "harmonic order {n} is below 2 or at/above Nyquist"),
-            FitError::TooManyBranches(m) => {
-                write!(f, "{m} harmonic branches: at most {MAX_BRANCHES} are supported")
-            }
-            FitError::Core(e) => write!(f, "{e}"),
+            FitError::Model(e) => write!(f, "{e}"),
             FitError::NoStableModel => write!(f, "no stable model fits the data"),
         }
     }
@@ -41,8 +34,14 @@ impl fmt::Display for FitError {
 
 impl std::error::Error for FitError {}
 
+impl From<ModelError> for FitError {
+    fn from(e: ModelError) -> Self {
+        FitError::Model(e)
+    }
+}
+
 impl From<boucwen_core::Error> for FitError {
     fn from(e: boucwen_core::Error) -> Self {
-        FitError::Core(e)
+        FitError::Model(ModelError::Core(e))
     }
 }

@@ -59,24 +59,29 @@
 //! ([`Averaging::PeriodsAndTrend`]) and models it by a term of its own.
 
 mod error;
+pub mod family;
+pub mod linear;
 mod lm;
-mod model;
 mod options;
+pub mod oscillator;
 mod periodic;
 mod problem;
+mod refine;
+pub mod response;
 mod rls;
 
 pub use error::FitError;
-pub use lm::Stop;
-pub use model::{Branch, HostModel, LoopShape, MAX_BRANCHES, ModelSpec, delayed};
+pub use lm::{Evaluation, Quadratic, Run, Stop, levenberg_marquardt, levenberg_marquardt_within};
 pub use options::{
-    Averaging, DelaySearch, LoopSearch, MAX_DELAY, MIN_SLOPE, OeOptions, Outer, Param, Samples,
-    StructureSearch, Tolerances, invertible_for, operating_slope, slope_rel, upwards,
+    Averaging, DelaySearch, LoopSearch, MIN_SLOPE, OeOptions, Outer, Param, Samples, StructureSearch,
+    Tolerances, invertible_for, operating_slope, slope_rel, upwards,
 };
 pub use periodic::{MAX_DRIVE_APERIODIC, MAX_TEMPLATE_ORDER, MIN_PERIODS};
+pub use refine::{Criterion, held_out_rms, refine};
 pub use rls::fit_paper_rls;
 
-use crate::analysis;
+use crate::model::{HostModel, LoopShape, ModelSpec};
+use crate::signal::analysis;
 use periodic::Template;
 use problem::{Eval, Problem, Window};
 use rayon::prelude::*;
@@ -84,6 +89,8 @@ use std::sync::{Arc, Mutex};
 
 /// Longest start-up simulated before the scored periods (s).
 pub const MAX_WARMUP_S: f64 = 10.0;
+/// The start-up lasts until the AR part's transient has decayed to this.
+const DECAY_TO: f64 = 1e-4;
 /// Fewest samples scored against the average period.
 pub const MIN_WINDOW_SAMPLES: usize = 500;
 
@@ -302,33 +309,6 @@ fn fit_oe_signed(
     Ok(fit)
 }
 
-/// AR coefficients of a resonance at `f_hz` with damping ratio `zeta` at interval `ts`.
-fn resonance_ar(f_hz: f64, zeta: f64, ts: f64) -> [f64; 2] {
-    let w = std::f64::consts::TAU * f_hz * ts;
-    if zeta < 1.0 {
-        let r = (-zeta * w).exp();
-        [2.0 * r * (w * (1.0 - zeta * zeta).sqrt()).cos(), -r * r]
-    } else {
-        let s = (zeta * zeta - 1.0).sqrt();
-        let (r1, r2) = ((-(zeta - s) * w).exp(), (-(zeta + s) * w).exp());
-        [r1 + r2, -r1 * r2]
-    }
-}
-
-/// Samples for the AR part's transient to decay to 10⁻⁴ (its largest pole's modulus).
-fn decay_samples(ar: [f64; 2]) -> usize {
-    let [a1, a2] = ar;
-    let disc = a1 * a1 + 4.0 * a2;
-    let r = if disc < 0.0 { (-a2).sqrt() } else { 0.5 * (a1.abs() + disc.sqrt()) };
-    if r.is_nan() || r <= 0.0 {
-        return 0;
-    }
-    if r >= 1.0 {
-        return usize::MAX;
-    }
-    ((1e-4f64).ln() / r.ln()).ceil().min(1e9) as usize
-}
-
 /// How the scored window is placed.
 enum Scoring {
     /// `[skip, end)`.
@@ -343,7 +323,8 @@ impl Scoring {
         match *self {
             Scoring::Samples(w) => w,
             Scoring::Periods { min_warmup, max_warmup, len } => {
-                let from = decay_samples(phi.ar).max(min_warmup).min(max_warmup);
+                let from =
+                    crate::model::poles::decay_samples(&phi.ar, DECAY_TO).max(min_warmup).min(max_warmup);
                 Window { from, to: from + len }
             }
         }
@@ -358,7 +339,7 @@ fn fit_once(
     opt: &OeOptions,
 ) -> Result<Fit, (FitError, usize)> {
     let (u, y, ts) = (data.u, data.y, data.ts);
-    spec.check(ts).map_err(|e| (e, 0))?;
+    spec.check(ts).map_err(|e| (e.into(), 0))?;
     let end = data.end(opt);
     let need = opt.skip + 200;
     if end < need {
@@ -464,7 +445,7 @@ fn fit_once(
         None => (0..16)
             .flat_map(|i| {
                 let f_r = 5.0 * (nyq * 0.9 / 5.0f64).powf(i as f64 / 15.0);
-                [0.01, 0.03, 0.1, 0.3, 1.0, 3.0].map(|zeta| resonance_ar(f_r, zeta, ts))
+                [0.01, 0.03, 0.1, 0.3, 1.0, 3.0].map(|zeta| crate::model::poles::ar2_of(f_r, zeta, ts))
             })
             .collect(),
     };
@@ -517,26 +498,35 @@ fn fit_once(
 
     // Stage C: Levenberg–Marquardt from the best few, in parallel.
     let free: Vec<Param> = free.into_iter().filter(|&p| prob.differentiable(p)).collect();
-    let runs: Vec<lm::Run> = cands
+    let runs: Vec<(Outer, lm::Run<Eval>)> = cands
         .par_iter()
         .take(opt.lm_starts.max(1))
         .filter_map(|&(_, start)| {
             let win = scoring.window(&start);
-            lm::levenberg_marquardt(start, &free, &opt.tolerances, |phi| prob.eval(phi, win, Some(&free)))
+            let at = |x: &[f64]| {
+                let mut phi = start;
+                for (&p, &v) in free.iter().zip(x) {
+                    phi.set(p, v);
+                }
+                phi
+            };
+            let x0: Vec<f64> = free.iter().map(|&p| start.get(p)).collect();
+            let run = lm::levenberg_marquardt(&x0, &opt.tolerances, |x| prob.eval(&at(x), win, Some(&free)))?;
+            Some((at(&run.x), run))
         })
         .collect();
-    evaluations += runs.iter().map(|r| r.evaluations).sum::<usize>();
+    evaluations += runs.iter().map(|r| r.1.evaluations).sum::<usize>();
     let mut runs = runs;
-    runs.sort_by(|a, b| a.eval.cost.total_cmp(&b.eval.cost));
+    runs.sort_by(|a, b| a.1.eval.cost.total_cmp(&b.1.eval.cost));
     let Some((floor, check_end)) = steady_check else {
-        let best = runs.into_iter().next().ok_or((FitError::NoStableModel, evaluations))?;
-        return Ok(done(&best.phi, best.eval, best.stop, best.iterations, evaluations));
+        let (phi, best) = runs.into_iter().next().ok_or((FitError::NoStableModel, evaluations))?;
+        return Ok(done(&phi, best.eval, best.stop, best.iterations, evaluations));
     };
     // The average period cannot show a model whose output is not periodic (a loop still
     // creeping, a slow pole): the best run whose free run on the fitted samples comes to what
     // its criterion and the noise predict, else the fit on the samples.
-    for run in runs {
-        let fit = done(&run.phi, run.eval, run.stop, run.iterations, evaluations);
+    for (phi, run) in runs {
+        let fit = done(&phi, run.eval, run.stop, run.iterations, evaluations);
         let expected = (fit.rms_fit.powi(2) + floor.powi(2)).sqrt();
         let steady = fit.model.simulate(&u[..check_end], ts).is_ok_and(|sim| {
             analysis::rms_diff(&sim[opt.skip..], &y[opt.skip..check_end]) <= STEADY_FACTOR * expected
@@ -571,6 +561,7 @@ pub fn free_run_rms(model: &HostModel, u: &[f64], y: &[f64], ts: f64, from: usiz
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::model::Branch;
     use boucwen_core::model::{BoucWenParams, ExtendedParams};
     use boucwen_core::signal::{Oscillator, Sine};
 
@@ -690,7 +681,7 @@ mod tests {
         let u = drive(23.0, 5000);
         let y = u.clone();
         let e = fit_oe(&u, &y, 1e-3, 4000, &ModelSpec::enhanced(23.0, &[25]), &[], &OeOptions::default());
-        assert_eq!(e.err(), Some(FitError::BadHarmonic(25)));
+        assert_eq!(e.err(), Some(FitError::Model(crate::model::ModelError::BadHarmonic(25))));
         let e = fit_oe(&u, &y, 1e-3, 100, &ModelSpec::extended(23.0), &[], &OeOptions::default());
         assert!(matches!(e, Err(FitError::TooFewSamples { .. })));
     }

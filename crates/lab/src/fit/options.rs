@@ -1,6 +1,6 @@
 //! What the output-error fit searches, on which data, and when it stops.
 
-use super::{HostModel, LoopShape, delayed};
+use crate::model::{HostModel, LoopShape, delayed_iter};
 use boucwen_core::model::BoucWenParams;
 
 /// The structure (the AR part `G`) of the fit.
@@ -174,7 +174,7 @@ pub fn invertible_for(model: &HostModel, u: &[f64]) -> bool {
     let bw = &model.ext.bw;
     let mut s = boucwen_core::model::HysteresisState::default();
     let (mut lo, mut hi) = (0.0f64, 0.0f64);
-    for &uk in &delayed(u, model.delay) {
+    for uk in delayed_iter(u, model.delay) {
         let h = s.step(bw, uk);
         lo = lo.min(h);
         hi = hi.max(h);
@@ -205,9 +205,6 @@ pub fn slope_rel(bw: &BoucWenParams<f64>, lo: f64, hi: f64) -> Option<f64> {
 
 /// Smallest branch slope of `A1·u - h`, relative to `A1`, of an invertible model.
 pub const MIN_SLOPE: f64 = 0.05;
-
-/// Largest input delay the fit considers (samples).
-pub const MAX_DELAY: f64 = 3.0;
 
 /// The outer (nonlinear) parameters of the output-error fit: for fixed outer parameters
 /// the model's output is linear in the gains, branch weights and drift.

@@ -15,9 +15,11 @@
 //!   `h' = h + (1 - γ'|h|)Δu + (A0/A - βh)|Δu|`, each filtered by `G`;
 //! - `∂u_τ/∂τ = u[k-m-1] - u[k-m]` (`τ = m + frac`, linear interpolation), filtered by `G`.
 
-use super::options::{MAX_DELAY, MIN_SLOPE, Outer, Param, operating_slope};
-use super::{HostModel, ModelSpec};
-use boucwen_core::model::{BoucWenParams, ExtendedParams, HarmonicBranch, ar_is_stable};
+use super::options::{MIN_SLOPE, Outer, Param, operating_slope};
+use crate::model::MAX_DELAY;
+use crate::model::poles;
+use crate::model::{HostModel, ModelSpec};
+use boucwen_core::model::{BoucWenParams, ExtendedParams, HarmonicBranch};
 use boucwen_core::signal::{Oscillator, sin_cos};
 use nalgebra::{DMatrix, DVector};
 
@@ -63,6 +65,15 @@ pub(crate) struct Eval {
     pub samples: usize,
     /// `(JᵀJ, Jᵀr)` over the free parameters, when asked.
     pub jac: Option<(DMatrix<f64>, DVector<f64>)>,
+}
+
+impl super::lm::Evaluation for Eval {
+    fn cost(&self) -> f64 {
+        self.cost
+    }
+    fn normal(&self) -> Option<(&DMatrix<f64>, &DVector<f64>)> {
+        self.jac.as_ref().map(|(a, b)| (a, b))
+    }
 }
 
 fn sgn(x: f64) -> f64 {
@@ -130,7 +141,7 @@ impl<'a> Problem<'a> {
     /// an unstable, degenerate or (when required) non-invertible model.
     pub fn eval(&self, phi: &Outer, win: Window, free: Option<&[Param]>) -> Option<Eval> {
         let [a1, a2] = phi.ar;
-        if !ar_is_stable(&phi.ar) || !(0.0..=MAX_DELAY).contains(&phi.delay) {
+        if !poles::stable(&phi.ar) || !(0.0..=MAX_DELAY).contains(&phi.delay) {
             return None;
         }
         debug_assert!(win.from >= self.target_from && win.to <= self.target_from + self.target.len());
@@ -375,7 +386,7 @@ fn dot(a: &[f64], b: &[f64]) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::fit::LoopShape;
+    use crate::model::LoopShape;
 
     /// The Jacobian from the sensitivity equations against central differences of the
     /// projected cost: `Jᵀr` is half the cost's gradient.

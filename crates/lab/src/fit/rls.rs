@@ -1,6 +1,7 @@
 //! The paper's section 3 identification by recursive least squares.
 
-use super::{FitError, HostModel, ModelSpec};
+use super::FitError;
+use crate::model::{HostModel, ModelError, ModelSpec};
 use boucwen_core::ident::{IdentConfig, Identifier};
 use boucwen_core::signal::Oscillator;
 
@@ -36,7 +37,7 @@ pub fn fit_paper_rls(
             let e = id.enhanced();
             (e.base, e.branches.to_vec())
         }
-        more => return Err(FitError::TooManyBranches(more.len())),
+        more => return Err(ModelError::TooManyBranches(more.len()).into()),
     };
     Ok(HostModel { ext, drive_hz: spec.drive_hz, branches, drift: vec![], delay: 0.0 })
 }

@@ -145,7 +145,13 @@ pub struct FeedbackReport {
 enum ModeParams {
     Real(f64),
     /// `k`: the scheduled stiffness, `[ρ → state 0, ρ → state 1, ρ² → state 0, ρ² → state 1]`.
-    Pair { sigma: f64, omega: f64, e: [f64; 2], s: f64, k: [f64; 4] },
+    Pair {
+        sigma: f64,
+        omega: f64,
+        e: [f64; 2],
+        s: f64,
+        k: [f64; 4],
+    },
 }
 
 impl ModeParams {
@@ -381,7 +387,13 @@ struct Pass {
 
 /// The input channels over the warm-up and the scored period (`2N`): `u_eff`, and per input
 /// `w = s·h(u/s) − u` and `∂w/∂ln s`.
-fn input_signals(u: &[f64], m: usize, len: usize, inputs: &[InputParams], shape: &Shape) -> [Vec<Vec<f64>>; 3] {
+fn input_signals(
+    u: &[f64],
+    m: usize,
+    len: usize,
+    inputs: &[InputParams],
+    shape: &Shape,
+) -> [Vec<Vec<f64>>; 3] {
     let mut ueff = Vec::with_capacity(m);
     let mut ws = Vec::with_capacity(m);
     let mut dws = Vec::with_capacity(m);
@@ -475,7 +487,8 @@ impl Problem<'_> {
         let d = self.data;
         let p = d.outputs;
         let len = d.samples;
-        let passes: Option<Vec<Pass>> = (0..d.u.len()).into_par_iter().map(|r| self.pass(pr, r, false)).collect();
+        let passes: Option<Vec<Pass>> =
+            (0..d.u.len()).into_par_iter().map(|r| self.pass(pr, r, false)).collect();
         let Some(passes) = passes else { return Ok(None) };
         let k = passes[0].phi.ncols();
         let mut g = DMatrix::<f64>::zeros(k, k);
@@ -552,7 +565,8 @@ impl Problem<'_> {
                 let rows: Vec<usize> = (0..len).step_by(stride).collect();
                 let f = stride as f64;
                 let phi_s = ps.phi.select_rows(rows.iter()) * (sw * f.sqrt());
-                let all_rows: Vec<usize> = (0..p).flat_map(|o| rows.iter().map(move |&k| o * len + k)).collect();
+                let all_rows: Vec<usize> =
+                    (0..p).flat_map(|o| rows.iter().map(move |&k| o * len + k)).collect();
                 let js = jac.select_rows(all_rows.iter()) * f.sqrt();
                 let jt = js.transpose();
                 let jj = &jt * &js;
@@ -630,7 +644,9 @@ pub fn fit_feedback(
             .iter()
             .map(|md| match *md {
                 Mode::Real(l) => ModeParams::Real(l),
-                Mode::Pair { sigma, omega } => ModeParams::Pair { sigma, omega, e: [0.0, 0.0], s: 1.0, k: [0.0; 4] },
+                Mode::Pair { sigma, omega } => {
+                    ModeParams::Pair { sigma, omega, e: [0.0, 0.0], s: 1.0, k: [0.0; 4] }
+                }
             })
             .collect(),
         inputs: Vec::new(),
@@ -638,7 +654,8 @@ pub fn fit_feedback(
     if !(opts.envelope_samples.is_finite() && opts.envelope_samples >= 0.0) {
         return Err(MimoError::Parameter("the envelope's time constant"));
     }
-    let mean_abs = data.u.iter().flatten().map(|v| v.abs()).sum::<f64>() / (data.u.len() * data.samples * m) as f64;
+    let mean_abs =
+        data.u.iter().flatten().map(|v| v.abs()).sum::<f64>() / (data.u.len() * data.samples * m) as f64;
     let envelope = Envelope {
         pole: if opts.envelope_samples > 0.0 { (-1.0 / opts.envelope_samples).exp() } else { 0.0 },
         scale: mean_abs.max(1e-300),
@@ -647,7 +664,9 @@ pub fn fit_feedback(
     let mut prob = Problem { data, b: &ss.b, shape: opts.shape, free: vec![], envelope, stride: opts.stride };
     let sq: Option<Vec<Vec<f64>>> = (0..data.u.len())
         .into_par_iter()
-        .map(|r| prob.pass(&pr, r, false).map(|p| (0..n + m).map(|i| p.phi.column(i).norm_squared()).collect()))
+        .map(|r| {
+            prob.pass(&pr, r, false).map(|p| (0..n + m).map(|i| p.phi.column(i).norm_squared()).collect())
+        })
         .collect();
     let sq = sq.ok_or(MimoError::Numerical("simulation of the linear model"))?;
     let rms: Vec<f64> = (0..n + m)
@@ -661,7 +680,9 @@ pub fn fit_feedback(
         at += mp.size();
     }
     if opts.input_channels {
-        pr.inputs = (0..m).map(|c| InputParams { kappa: 0.0, s: (opts.input_scale * rms[n + c]).max(1e-300) }).collect();
+        pr.inputs = (0..m)
+            .map(|c| InputParams { kappa: 0.0, s: (opts.input_scale * rms[n + c]).max(1e-300) })
+            .collect();
     }
     prob.free = pr
         .modes
@@ -710,8 +731,12 @@ pub fn fit_feedback(
                 mu *= 10.0;
                 continue;
             };
-            let trial: Vec<f64> =
-                th.iter().zip(step.iter()).zip(&bounds).map(|((a, b), &(lo, hi))| (a + b).clamp(lo, hi)).collect();
+            let trial: Vec<f64> = th
+                .iter()
+                .zip(step.iter())
+                .zip(&bounds)
+                .map(|((a, b), &(lo, hi))| (a + b).clamp(lo, hi))
+                .collect();
             let cand = pr.unpack(&trial);
             if cand.modes.iter().all(|m| m.radius() < 0.9999) && trial.iter().all(|v| v.is_finite()) {
                 if let Some(e2) = prob.evaluate(&cand)? {
@@ -739,7 +764,8 @@ pub fn fit_feedback(
             break;
         }
     }
-    let model = assemble(lin, &pr, &ev.theta, &opts.shape, opts.mode_hysteresis, opts.schedule.then_some(envelope))?;
+    let model =
+        assemble(lin, &pr, &ev.theta, &opts.shape, opts.mode_hysteresis, opts.schedule.then_some(envelope))?;
     Ok((model, FeedbackReport { cost: (cost0, ev.cost), iterations: done }))
 }
 
@@ -835,16 +861,29 @@ mod tests {
 
     /// The envelope the fit makes for `data` with the default options.
     fn env(data: &Periods) -> Envelope {
-        let mean_abs = data.u.iter().flatten().map(|v| v.abs()).sum::<f64>() / (data.u.len() * data.u[0].len()) as f64;
+        let mean_abs =
+            data.u.iter().flatten().map(|v| v.abs()).sum::<f64>() / (data.u.len() * data.u[0].len()) as f64;
         Envelope { pole: (-1.0f64 / FeedbackOptions::default().envelope_samples).exp(), scale: mean_abs }
     }
 
     fn params() -> Params {
         Params {
             modes: vec![
-                ModeParams::Pair { sigma: 0.95 * 0.6f64.cos(), omega: 0.95 * 0.6f64.sin(), e: [0.3, -0.2], s: 1.5, k: [0.01, -0.02, 0.005, 0.003] },
+                ModeParams::Pair {
+                    sigma: 0.95 * 0.6f64.cos(),
+                    omega: 0.95 * 0.6f64.sin(),
+                    e: [0.3, -0.2],
+                    s: 1.5,
+                    k: [0.01, -0.02, 0.005, 0.003],
+                },
                 ModeParams::Real(0.5),
-                ModeParams::Pair { sigma: 0.97 * 1.3f64.cos(), omega: 0.97 * 1.3f64.sin(), e: [-0.02, 0.05], s: 0.8, k: [-0.01, 0.015, 0.002, -0.004] },
+                ModeParams::Pair {
+                    sigma: 0.97 * 1.3f64.cos(),
+                    omega: 0.97 * 1.3f64.sin(),
+                    e: [-0.02, 0.05],
+                    s: 0.8,
+                    k: [-0.01, 0.015, 0.002, -0.004],
+                },
             ],
             inputs: vec![InputParams { kappa: 0.2, s: 1.2 }, InputParams { kappa: -0.1, s: 0.7 }],
         }
@@ -881,7 +920,10 @@ mod tests {
                     for k in (0..data.samples).step_by(17) {
                         let fd = (a.runs[bi].x[st][k] - b.runs[bi].x[st][k]) / (2.0 * h);
                         let an = an_idx.map_or(0.0, |i| base.runs[bi].dx[i][st][k]);
-                        assert!((fd - an).abs() < 1e-4 * (1.0 + an.abs()), "θ {j} mode {bi} state {st} k {k}: {an} vs {fd}");
+                        assert!(
+                            (fd - an).abs() < 1e-4 * (1.0 + an.abs()),
+                            "θ {j} mode {bi} state {st} k {k}: {an} vs {fd}"
+                        );
                     }
                 }
                 off += mp.count();
@@ -903,15 +945,18 @@ mod tests {
                 .modes
                 .iter()
                 .map(|mp| match *mp {
-                    ModeParams::Pair { sigma, omega, s, .. } => ModeParams::Pair { sigma, omega, e: [0.0; 2], s, k: [0.0; 4] },
+                    ModeParams::Pair { sigma, omega, s, .. } => {
+                        ModeParams::Pair { sigma, omega, e: [0.0; 2], s, k: [0.0; 4] }
+                    }
                     r => r,
                 })
                 .collect(),
             inputs: vec![],
         };
         let rms = |i: usize| {
-            let ss: f64 =
-                (0..3).map(|r| prob.pass(&lin_pr, r, false).expect("pass").phi.column(i).norm_squared()).sum();
+            let ss: f64 = (0..3)
+                .map(|r| prob.pass(&lin_pr, r, false).expect("pass").phi.column(i).norm_squared())
+                .sum();
             (ss / (3 * data.samples) as f64).sqrt()
         };
         let scales = [2.0 * rms(0), 2.0 * rms(3)];
@@ -921,7 +966,11 @@ mod tests {
             }
         }
         for (c, ip) in pr.inputs.iter_mut().enumerate() {
-            let ms: f64 = data.u.iter().map(|u| u[c * data.samples..(c + 1) * data.samples].iter().map(|v| v * v).sum::<f64>()).sum();
+            let ms: f64 = data
+                .u
+                .iter()
+                .map(|u| u[c * data.samples..(c + 1) * data.samples].iter().map(|v| v * v).sum::<f64>())
+                .sum();
             ip.s = 2.0 * (ms / (3 * data.samples) as f64).sqrt();
         }
         let mut theta = DMatrix::zeros(7, 2);

@@ -25,12 +25,13 @@
 //!    (normal equations `Σ_k Re[(Σ_r V̄_r V_rᵀ) ⊗ Φᴴ Φ] vec Θ = Re vec(Φᴴ Σ_r Y_r V_rᴴ)`), with
 //!    `A` and `C` from step 3; the shape with the least cost is kept: the **hysteretic model**.
 //!
-//! ## Order choice ([`fit_mimo`])
-//! With several candidate orders and [`FitOptions::holdout`] = `h`, each order is fitted on
-//! the other realisations of every level and scored by [`benchmark_error`] on realisation
-//! `h` of every level; the order with the least mean score over the levels (of the hysteretic
-//! model, or of the linear one when the branch is off) wins, and is fitted again on every
-//! realisation.
+//! ## Order choice and the score kept apart ([`fit_mimo`])
+//! With [`FitOptions::holdout`] = `h`, each candidate order is fitted on the other
+//! realisations of every level and scored by [`benchmark_error`] on realisation `h` of every
+//! level; the order with the least mean score over the levels (of the hysteretic model, or of
+//! the linear one when the branch is off) wins, and its model is kept as fitted (not fitted
+//! again on `h`, so its score stays a held-out one). Without `h`, the first order is fitted
+//! on every realisation and nothing is scored.
 //!
 //! ## The benchmark's metric ([`benchmark_error`])
 //! Per output, the RMS of `y − ŷ` over each period after its first [`SKIP_SAMPLES`] samples,
@@ -81,7 +82,8 @@ pub struct FitOptions {
     pub mode_channels: bool,
     /// Candidate loop shapes (of the channels scaled to unit RMS).
     pub shapes: Vec<Shape>,
-    /// The realisation of every level kept apart to choose the order.
+    /// The realisation of every level kept apart from the fit, to choose the order and score
+    /// the model (`None`: every realisation fitted, nothing scored).
     pub holdout: Option<usize>,
     /// Weigh each level's squared errors by `1/RMS` of its outputs, so that each level's RMS
     /// error counts alike in the sum of the metric (otherwise the loudest level dominates).
@@ -152,7 +154,10 @@ pub struct MimoFit {
     pub linear: MimoModel,
     /// The chosen order.
     pub order: usize,
-    /// The candidates' scores (empty without a choice).
+    /// The kept model's and its linear part's benchmark metric per level on the realisation
+    /// kept apart ([`FitOptions::holdout`]; `None` without one).
+    pub held_out: Option<OrderScore>,
+    /// Every candidate order's scores (empty without a realisation kept apart).
     pub order_scores: Vec<OrderScore>,
     /// The BLA diagnosis of each level.
     pub diagnosis: Vec<LevelDiagnosis>,
@@ -161,6 +166,11 @@ pub struct MimoFit {
 }
 
 /// Identifies one model for every level of `rec` (module docs), reporting through `progress`.
+///
+/// With [`FitOptions::holdout`] `Some(h)`, realisation `h` of every level is kept apart from
+/// every step (the order's choice and the fit) and the model is scored on it with the
+/// benchmark's metric ([`MimoFit::held_out`]); with `None` every realisation is fitted and
+/// nothing is scored.
 pub fn fit_mimo(
     rec: &MimoRecord,
     opts: &FitOptions,
@@ -168,55 +178,76 @@ pub fn fit_mimo(
 ) -> Result<MimoFit, MimoError> {
     let t0 = Instant::now();
     let levels: Vec<usize> = (0..rec.levels.len()).collect();
+    let realisations = rec.levels.iter().map(|l| l.u.realisations).min().unwrap_or(0);
+    if let Some(h) = opts.holdout {
+        if h >= realisations || realisations < 2 {
+            return Err(MimoError::Data(format!(
+                "realisation {} kept apart, but the record has {realisations} per level (at least 2 to keep one apart)",
+                h + 1
+            )));
+        }
+    }
     let all = Spectra::new(rec, &|_, _| true)?;
     let diagnosis = levels.iter().map(|&li| bla::diagnose_level(&all, li)).collect::<Result<Vec<_>, _>>()?;
     progress(&Progress {
         stage: "bla",
         message: format!("BLA of {} levels on {} excited lines", levels.len(), diagnosis[0].bla.lines.len()),
     });
-    let mut order_scores = Vec::new();
-    let order = match (opts.orders.as_slice(), opts.holdout) {
-        ([], _) => return Err(MimoError::Data("no candidate order".into())),
-        ([n], _) | ([n, ..], None) => *n,
-        (orders, Some(h)) => {
-            let keep = |_: usize, r: usize| r != h;
-            for &n in orders {
-                let f = fit_structure(rec, &keep, &levels, n, opts, progress)?;
-                let score = |m: &MimoModel| -> Result<Vec<f64>, MimoError> {
-                    rec.levels.iter().map(|l| benchmark_error(m, l, &[h])).collect()
-                };
-                let s = OrderScore {
-                    order: n,
-                    linear: score(&f.linear)?,
-                    hysteretic: f.hysteretic.as_ref().map(score).transpose()?.unwrap_or_default(),
-                };
-                progress(&Progress {
-                    stage: "order",
-                    message: format!(
-                        "order {n}: held out (realisation {}) linear {:?} hysteretic {:?} µm",
-                        h + 1,
-                        round4(&s.linear),
-                        round4(&s.hysteretic)
-                    ),
-                });
-                order_scores.push(s);
-            }
-            let mean = |s: &OrderScore| {
-                let v = if s.hysteretic.is_empty() { &s.linear } else { &s.hysteretic };
-                v.iter().sum::<f64>() / v.len().max(1) as f64
-            };
-            order_scores.iter().min_by(|a, b| mean(a).total_cmp(&mean(b))).map_or(orders[0], |s| s.order)
-        }
+    let keep = |_: usize, r: usize| Some(r) != opts.holdout;
+    let score = |f: &Fitted, n: usize, h: usize| -> Result<OrderScore, MimoError> {
+        let score = |m: &MimoModel| -> Result<Vec<f64>, MimoError> {
+            rec.levels.iter().map(|l| benchmark_error(m, l, &[h])).collect()
+        };
+        Ok(OrderScore {
+            order: n,
+            linear: score(&f.linear)?,
+            hysteretic: f.hysteretic.as_ref().map(score).transpose()?.unwrap_or_default(),
+        })
     };
-    let f = fit_structure(rec, &|_, _| true, &levels, order, opts, progress)?;
+    let mut order_scores = Vec::new();
+    let mut fits = Vec::new();
+    if opts.orders.is_empty() {
+        return Err(MimoError::Data("no candidate order".into()));
+    }
+    let orders = if opts.holdout.is_some() { opts.orders.as_slice() } else { &opts.orders[..1] };
+    for &n in orders {
+        let f = fit_structure(rec, &keep, &levels, n, opts, progress)?;
+        if let Some(h) = opts.holdout {
+            let s = score(&f, n, h)?;
+            progress(&Progress {
+                stage: "order",
+                message: format!(
+                    "order {n}: held out (realisation {}) linear {:?} hysteretic {:?} µm",
+                    h + 1,
+                    round4(&s.linear),
+                    round4(&s.hysteretic)
+                ),
+            });
+            order_scores.push(s);
+        }
+        fits.push(f);
+    }
+    let mean = |s: &OrderScore| {
+        let v = if s.hysteretic.is_empty() { &s.linear } else { &s.hysteretic };
+        v.iter().sum::<f64>() / v.len().max(1) as f64
+    };
+    let best = (0..fits.len()).min_by(|&a, &b| match (order_scores.get(a), order_scores.get(b)) {
+        (Some(x), Some(y)) => mean(x).total_cmp(&mean(y)),
+        _ => std::cmp::Ordering::Equal,
+    });
+    let i = best.unwrap_or(0);
+    let f = fits.swap_remove(i);
+    let order = orders[i];
+    let held_out = order_scores.get(i).cloned();
     progress(&Progress {
         stage: "final",
-        message: format!("order {order} fitted on every realisation in {:.1} s", t0.elapsed().as_secs_f64()),
+        message: format!("order {order} kept; the whole fit took {:.1} s", t0.elapsed().as_secs_f64()),
     });
     Ok(MimoFit {
         model: f.best().clone(),
         linear: f.linear,
         order,
+        held_out,
         order_scores,
         diagnosis,
         seconds: t0.elapsed().as_secs_f64(),
@@ -515,8 +546,20 @@ fn fit_branch(
 }
 
 /// The benchmark's metric (module docs) of `model` on the realisations `realisations` of
-/// `level`, µm.
+/// `level`, µm: the mean over outputs of [`benchmark_outputs`].
 pub fn benchmark_error(model: &MimoModel, level: &Level, realisations: &[usize]) -> Result<f64, MimoError> {
+    let per = benchmark_outputs(model, level, realisations)?;
+    Ok(per.iter().sum::<f64>() / per.len() as f64)
+}
+
+/// Per output, the RMS error (µm) of `model` over each period of the realisations
+/// `realisations` of `level` after its first [`SKIP_SAMPLES`] samples, averaged over periods
+/// and realisations.
+pub fn benchmark_outputs(
+    model: &MimoModel,
+    level: &Level,
+    realisations: &[usize],
+) -> Result<Vec<f64>, MimoError> {
     let (m, p, len) = (level.u.channels, level.y.channels, level.u.samples);
     if m != model.inputs || p != model.outputs {
         return Err(MimoError::Shape(format!(
@@ -537,15 +580,16 @@ pub fn benchmark_error(model: &MimoModel, level: &Level, realisations: &[usize])
         .map(|&(r, pp)| {
             let u: Vec<f64> = (0..m).flat_map(|c| level.u.get(r, pp, c).iter().copied()).collect();
             let yhat = model.simulate(&u, Warmup::Periods(1))?;
-            let mut s = 0.0;
-            for o in 0..p {
-                let y = level.y.get(r, pp, o);
-                let ms: f64 = (SKIP_SAMPLES..len).map(|k| (y[k] - yhat[o * len + k]).powi(2)).sum::<f64>()
-                    / (len - SKIP_SAMPLES) as f64;
-                s += ms.sqrt();
-            }
-            Ok(s / p as f64)
+            Ok((0..p)
+                .map(|o| {
+                    let y = level.y.get(r, pp, o);
+                    let ms: f64 =
+                        (SKIP_SAMPLES..len).map(|k| (y[k] - yhat[o * len + k]).powi(2)).sum::<f64>()
+                            / (len - SKIP_SAMPLES) as f64;
+                    ms.sqrt()
+                })
+                .collect::<Vec<f64>>())
         })
-        .collect::<Result<Vec<f64>, MimoError>>()?;
-    Ok(errs.iter().sum::<f64>() / errs.len() as f64)
+        .collect::<Result<Vec<Vec<f64>>, MimoError>>()?;
+    Ok((0..p).map(|o| errs.iter().map(|e| e[o]).sum::<f64>() / errs.len() as f64).collect())
 }

@@ -172,9 +172,22 @@ mod tests {
 
     #[test]
     fn mimo_step_gradient_matches_finite_differences() {
-        let shapes = [Shape { a0: 0.2, gamma: 0.7, beta: 1.1 }, Shape::symmetric(0.5), Shape { a0: -0.3, gamma: -0.2, beta: 0.9 }];
+        let shapes = [
+            Shape { a0: 0.2, gamma: 0.7, beta: 1.1 },
+            Shape::symmetric(0.5),
+            Shape { a0: -0.3, gamma: -0.2, beta: 0.9 },
+        ];
         for sh in shapes {
-            for &(h, dz) in &[(0.3, 0.2), (0.3, -0.9), (-0.4, 1.5), (0.05, -0.3), (-0.2, 0.01), (0.6, -2.0), (0.0, 0.4), (0.2, 1e-12)] {
+            for &(h, dz) in &[
+                (0.3, 0.2),
+                (0.3, -0.9),
+                (-0.4, 1.5),
+                (0.05, -0.3),
+                (-0.2, 0.01),
+                (0.6, -2.0),
+                (0.0, 0.4),
+                (0.2, 1e-12),
+            ] {
                 let (h1, dh, ddz) = sh.step_grad(h, dz);
                 assert!((h1 - sh.step(h, dz)).abs() < 1e-14, "{h1}");
                 let e = 1e-7;
@@ -184,7 +197,10 @@ mod tests {
                     assert!((fdh - dh).abs() < 1e-5 * (1.0 + dh.abs()), "{sh:?} {h} {dz}: dh {dh} vs {fdh}");
                 }
                 if dz.abs() > 1e-6 {
-                    assert!((fdz - ddz).abs() < 1e-5 * (1.0 + ddz.abs()), "{sh:?} {h} {dz}: ddz {ddz} vs {fdz}");
+                    assert!(
+                        (fdz - ddz).abs() < 1e-5 * (1.0 + ddz.abs()),
+                        "{sh:?} {h} {dz}: ddz {ddz} vs {fdz}"
+                    );
                 }
             }
         }

@@ -13,6 +13,7 @@
 //! | hysteresis | [`hysteresis`] | the Bouc–Wen hysteresis, integrated exactly between samples |
 //! | model | [`model`] | [`MimoModel`]: parameters apart from state, simulation with a periodic warm-up |
 //! | fit | [`fit`] | the whole identification across levels, order choice on kept-apart realisations, the benchmark's metric |
+//! | file | [`file`] | the model file of family `"mimo"` (`identify --save`, `compare`, `simulate --model`) |
 //!
 //! ## Steady state and the frequency domain
 //! Under a periodic input in steady state, a linear model's output over one period is
@@ -27,12 +28,14 @@
 
 pub mod bla;
 pub mod feedback;
+pub mod file;
 pub mod fit;
 pub mod hysteresis;
 pub mod linear;
 pub mod model;
 pub mod spectra;
 
+pub use file::MimoModelFile;
 pub use fit::{FitOptions, MimoFit, Progress, fit_mimo};
 pub use model::MimoModel;
 

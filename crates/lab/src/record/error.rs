@@ -248,7 +248,8 @@ impl fmt::Display for ErrorKind {
             }
             ErrorKind::RateMismatch { from_time_hz, given_hz } => write!(
                 f,
-                "the time column gives a sample rate of {from_time_hz:.6} Hz, --sample-rate says {given_hz} Hz"
+                "the time column gives a sample rate of {from_time_hz:.6} Hz, --sample-rate says {} Hz",
+                for_people(*given_hz)
             ),
             ErrorKind::OutputSpan { span_um, read_in, likely } => {
                 let read =
@@ -262,11 +263,14 @@ impl fmt::Display for ErrorKind {
                     }
                 }
             }
-            ErrorKind::TimeUnitUnstated { column, step } => write!(
-                f,
-                "column {column:?}: the times are whole numbers {step} apart and the header gives no unit; \
-                 if t is in ms, give --t-unit ms (us for µs; s if it really is sampled every {step} s)"
-            ),
+            ErrorKind::TimeUnitUnstated { column, step } => {
+                let step = for_people(*step);
+                write!(
+                    f,
+                    "column {column:?}: the times are whole numbers {step} apart and the header gives no unit; \
+                     if t is in ms, give --t-unit ms (us for µs; s if it really is sampled every {step} s)"
+                )
+            }
             ErrorKind::DuplicateColumn(name) => write!(f, "column {name:?} appears twice"),
             ErrorKind::MissingColumn { role, found } => write!(
                 f,
@@ -285,10 +289,20 @@ impl fmt::Display for ErrorKind {
                 write!(f, "column {column:?}: {text:?} is not finite")
             }
             ErrorKind::OutOfRange { column, value, limit, unit } => {
-                write!(f, "column {column:?}: {value} is beyond ±{limit} {unit}")
+                write!(
+                    f,
+                    "column {column:?}: {} is beyond ±{} {unit}",
+                    for_people(*value),
+                    for_people(*limit)
+                )
             }
             ErrorKind::TimeNotIncreasing { previous, t } => {
-                write!(f, "column \"t\": {t} does not increase from the previous row's {previous}")
+                write!(
+                    f,
+                    "column \"t\": {} does not increase from the previous row's {}",
+                    for_people(*t),
+                    for_people(*previous)
+                )
             }
             ErrorKind::NonUniform { dt, median, tolerance } => write!(
                 f,
@@ -330,18 +344,53 @@ impl RecordError {
     }
 }
 
+/// A number as a message shows it to people: as Rust writes it (the shortest form that
+/// reads back to it) from `10⁻⁴` to `10¹⁵` in size, in scientific notation beyond (`1e300`,
+/// not 301 digits; `1.5e-9`, not `0.0000000015`), so a Unix time reads as written.
+///
+/// ```
+/// use boucwen_lab::record::for_people;
+/// assert_eq!(for_people(1e300), "1e300");
+/// assert_eq!(for_people(-2.5e-7), "-2.5e-7");
+/// assert_eq!(for_people(1_700_000_000.125), "1700000000.125");
+/// assert_eq!((for_people(0.001), for_people(0.0)), ("0.001".to_string(), "0".to_string()));
+/// ```
+pub fn for_people(x: f64) -> String {
+    if x == 0.0 || !x.is_finite() || (1e-4..1e15).contains(&x.abs()) {
+        x.to_string()
+    } else {
+        format!("{x:e}")
+    }
+}
+
 /// Longest part of an offending field quoted in a message, in characters.
 pub const EXCERPT_CHARS: usize = 24;
 
 /// `text` as quoted in a message: at most [`EXCERPT_CHARS`] characters, then `…`; control
-/// characters shown as `?` (a message stays one printable line).
+/// characters, the line and paragraph separators U+2028 and U+2029 (which break a line in
+/// an editor, a browser or a log viewer, though they are not control characters) and the
+/// bidirectional controls (which reorder what follows them) shown as `?`: a message stays
+/// one printable line, in the order written.
+///
+/// ```
+/// use boucwen_lab::record::excerpt;
+/// assert_eq!(excerpt("disp\u{2028}[mm]\t"), "disp?[mm]?");
+/// ```
 pub fn excerpt(text: &str) -> String {
     excerpt_n(text, EXCERPT_CHARS)
 }
 
+/// Whether `c` is shown as `?` in a message (see [`excerpt`]).
+fn unprintable(c: char) -> bool {
+    c.is_control()
+        || matches!(c, '\u{2028}' | '\u{2029}' | '\u{200e}' | '\u{200f}' | '\u{061c}')
+        || ('\u{202a}'..='\u{202e}').contains(&c)
+        || ('\u{2066}'..='\u{2069}').contains(&c)
+}
+
 /// [`excerpt`] of at most `n` characters.
 pub(super) fn excerpt_n(text: &str, n: usize) -> String {
-    let mut out: String = text.chars().take(n).map(|c| if c.is_control() { '?' } else { c }).collect();
+    let mut out: String = text.chars().take(n).map(|c| if unprintable(c) { '?' } else { c }).collect();
     if text.chars().nth(n).is_some() {
         out.push('…');
     }

@@ -457,7 +457,9 @@ impl ImportInfo {
             .collect();
         let time = match &self.time {
             TimeSource::Column(_) => String::new(),
-            TimeSource::SampleRate(hz) => format!("; times from --sample-rate {hz} Hz"),
+            TimeSource::SampleRate(hz) => {
+                format!("; times from --sample-rate {} Hz", super::for_people(*hz))
+            }
         };
         let spikes = self.spikes.as_ref().map_or(String::new(), |s| format!("; {}", s.describe()));
         let preamble = self.preamble.map_or(String::new(), |p| {
@@ -500,16 +502,16 @@ pub struct Imported {
     pub info: ImportInfo,
 }
 
-/// Reads a record file as it comes (see the module docs of [`crate::record`]).
+/// Reads a record file as it comes (see the module docs of [`crate::record`]). The file is
+/// read line by line, never whole: what stays in memory is the record (and, while reading,
+/// the times of a time column and the unit of their last digits).
 pub fn import(path: impl AsRef<Path>, opts: &ImportOptions) -> Result<Imported, RecordError> {
     let path = path.as_ref();
     let source = path.display().to_string();
-    let bytes = std::fs::read(path).map_err(|e| RecordError::new(&source, None, ErrorKind::Io(e)))?;
-    let text = std::str::from_utf8(&bytes).map_err(|e| {
-        let line = 1 + bytes[..e.valid_up_to()].iter().filter(|&&b| b == b'\n').count();
-        RecordError::new(&source, Some(At::Line(line)), ErrorKind::NotUtf8)
-    })?;
-    import_text(text, &source, opts)
+    let io = |e| RecordError::new(&source, None, ErrorKind::Io(e));
+    let file = std::fs::File::open(path).map_err(io)?;
+    let bytes = file.metadata().map_err(io)?.len();
+    import_from(std::io::BufReader::with_capacity(1 << 16, file), bytes, &source, opts)
 }
 
 impl Record {
@@ -719,18 +721,34 @@ fn recognise(name: &str) -> (Option<Col>, Option<f64>, bool) {
         _ => (None, unit),
     };
     let exact = exact || (role.is_some() && unit == Some(base));
-    let scale = match (role, unit) {
-        (Some(Col::T), Some(u)) => match u {
+    let scale = role.zip(unit).and_then(|(r, u)| unit_scale(r, u));
+    (role, scale, exact)
+}
+
+/// The unit a header name states for the role `col` it was given for with `--columns`,
+/// whatever the name (`Zeit [ms]` for `t`, `Spannung (mV)` for `u`; a name that is only a
+/// unit, `ms`): seconds, volts or micrometres per unit. `None` if it states none of that
+/// role's units.
+fn stated_scale(name: &str, col: Col) -> Option<f64> {
+    let lower = name.trim().to_lowercase();
+    let (base, unit) = split_unit(&lower);
+    // "m" alone names a column more often than it states metres.
+    unit.or((base != "m").then_some(base)).and_then(|u| unit_scale(col, u))
+}
+
+/// Seconds, volts or micrometres per `unit` for the role `col` (`None`: not one of its
+/// units).
+fn unit_scale(col: Col, unit: &str) -> Option<f64> {
+    match col {
+        Col::T => match unit {
             "s" => Some(1.0),
             "ms" => Some(1e-3),
             "us" | "µs" | "μs" => Some(1e-6),
             _ => None,
         },
-        (Some(Col::U), Some(u)) => u.parse::<VoltUnit>().ok().map(VoltUnit::volts),
-        (Some(Col::Y | Col::D), Some(u)) => u.parse::<LengthUnit>().ok().map(LengthUnit::micrometres),
-        _ => None,
-    };
-    (role, scale, exact)
+        Col::U => unit.parse::<VoltUnit>().ok().map(VoltUnit::volts),
+        Col::Y | Col::D => unit.parse::<LengthUnit>().ok().map(LengthUnit::micrometres),
+    }
 }
 
 /// Units of a time column.
@@ -836,47 +854,129 @@ fn likely_unit(span_as_read: f64, read_in: LengthUnit) -> Option<LengthUnit> {
 /// # Ok::<(), Box<dyn std::error::Error>>(())
 /// ```
 pub fn import_text(text: &str, source: &str, opts: &ImportOptions) -> Result<Imported, RecordError> {
+    import_from(text.as_bytes(), text.len() as u64, source, opts)
+}
+
+/// The lines of a record's text, numbered from 1, read one at a time into one buffer:
+/// trimmed, the byte-order mark skipped, blank lines and comments passed over.
+struct LineReader<'s, R> {
+    reader: R,
+    buf: Vec<u8>,
+    line_no: usize,
+    source: &'s str,
+}
+
+impl<R: std::io::BufRead> LineReader<'_, R> {
+    /// The next line that is neither blank nor a comment: its number, its text (trimmed),
+    /// and whether a line end follows it (only a file's last line may lack one; a `\r`
+    /// counts). `None` at the end.
+    fn next_content(&mut self) -> Result<Option<(usize, &str, bool)>, RecordError> {
+        loop {
+            self.buf.clear();
+            let read = self
+                .reader
+                .read_until(b'\n', &mut self.buf)
+                .map_err(|e| RecordError::new(self.source, None, ErrorKind::Io(e)))?;
+            if read == 0 {
+                return Ok(None);
+            }
+            self.line_no += 1;
+            if self.line_no == 1 && self.buf.starts_with("\u{feff}".as_bytes()) {
+                self.buf.drain(..3);
+            }
+            let Ok(text) = std::str::from_utf8(&self.buf) else {
+                return Err(RecordError::new(self.source, Some(At::Line(self.line_no)), ErrorKind::NotUtf8));
+            };
+            let line = text.trim();
+            if !line.is_empty() && !is_comment(line) {
+                break;
+            }
+        }
+        let ended = matches!(self.buf.last(), Some(b'\n' | b'\r'));
+        // (Checked above; borrowed again after the loop.)
+        let line = std::str::from_utf8(&self.buf).unwrap_or_default().trim();
+        Ok(Some((self.line_no, line, ended)))
+    }
+}
+
+/// The table's lines: those read ahead (the layout's) first, then the rest as they come.
+struct TableLines<'s, R> {
+    ahead: std::collections::VecDeque<(usize, String, bool)>,
+    current: String,
+    rest: LineReader<'s, R>,
+}
+
+impl<R: std::io::BufRead> TableLines<'_, R> {
+    /// The next line (number, text, whether a line end follows it).
+    fn next_line(&mut self) -> Result<Option<(usize, &str, bool)>, RecordError> {
+        match self.ahead.pop_front() {
+            Some((no, text, ended)) => {
+                self.current = text;
+                Ok(Some((no, &self.current, ended)))
+            }
+            None => self.rest.next_content(),
+        }
+    }
+}
+
+/// The sample rows' line numbers: the first row's, and each row whose line does not follow
+/// the previous row's (comments or blank lines between them), so a file of rows on
+/// consecutive lines costs nothing per row.
+#[derive(Default)]
+struct LineMap(Vec<(usize, usize)>);
+
+impl LineMap {
+    fn push(&mut self, sample: usize, line: usize) {
+        let follows = self.0.last().is_some_and(|&(k, l)| l + (sample - k) == line);
+        if !follows {
+            self.0.push((sample, line));
+        }
+    }
+    fn line(&self, sample: usize) -> usize {
+        let i = self.0.partition_point(|&(k, _)| k <= sample);
+        self.0.get(i.wrapping_sub(1)).map_or(0, |&(k, l)| l + (sample - k))
+    }
+}
+
+/// [`import_text`] on a reader of `bytes` bytes (an estimate, for the storage reserved).
+fn import_from(
+    reader: impl std::io::BufRead,
+    bytes: u64,
+    source: &str,
+    opts: &ImportOptions,
+) -> Result<Imported, RecordError> {
     let err = |line: usize, kind| RecordError::new(source, Some(At::Line(line)), kind);
     let whole = |kind| RecordError::new(source, None, kind);
-    let text = text.strip_prefix('\u{feff}').unwrap_or(text);
-    let mut rest = text
-        .split('\n')
-        .enumerate()
-        .map(|(i, l)| (i + 1, l.trim()))
-        .filter(|(_, l)| !l.is_empty() && !is_comment(l));
+    let mut rest = LineReader { reader, buf: Vec::new(), line_no: 0, source };
     // The layout from the first lines (a preamble is a few dozen), the rest read as it comes.
-    let head: Vec<(usize, &str)> = rest.by_ref().take(LAYOUT_LINES).collect();
-    if head.is_empty() {
+    let mut read_ahead: Vec<(usize, String, bool)> = Vec::new();
+    while read_ahead.len() < LAYOUT_LINES {
+        match rest.next_content()? {
+            Some((no, text, ended)) => read_ahead.push((no, text.to_string(), ended)),
+            None => break,
+        }
+    }
+    if read_ahead.is_empty() {
         return Err(whole(ErrorKind::Empty));
     }
+    let head: Vec<(usize, &str)> = read_ahead.iter().map(|(no, t, _)| (*no, t.as_str())).collect();
     let Layout { start, sep, decimal_comma } = layout(&head);
     // Without a fraction among those lines, a comma under another separator is a decimal one.
     let dc = decimal_comma.unwrap_or(sep != Separator::Comma);
     let mut saw_comma = false;
     let preamble = (start > 0).then(|| Preamble { lines: start, table_line: head[start].0 });
-    // The last line's number, if the file does not end with a line end.
-    let unended = (!text.ends_with(['\n', '\r']))
-        .then(|| {
-            text.rsplit('\n').next().map(|l| (text.bytes().filter(|&b| b == b'\n').count() + 1, l.trim()))
-        })
-        .flatten()
-        .filter(|(_, l)| !l.is_empty() && !is_comment(l))
-        .map(|(n, _)| n);
-    let mut lines = head[start..].iter().copied().chain(rest).peekable();
-
-    // The first line of the table: header or not.
-    let Some(&(first_line, first)) = lines.peek() else {
-        return Err(whole(ErrorKind::Empty));
-    };
+    // The rows read ahead, for the checks that look at more than one row.
+    let head_rows: Vec<(usize, &str)> = head[start..].to_vec();
+    let (first_line, first) = head_rows[0];
     let first_fields = fields(first, sep);
     let header = first_fields.iter().any(|f| !f.is_empty() && number(f, dc).is_none());
     let mut names: Option<Vec<String>> = header.then(|| first_fields.iter().map(|s| s.to_string()).collect());
     let mut width = first_fields.len();
+    let rows_ahead = &head_rows[usize::from(header)..];
     if header {
-        lines.next();
         // A header may name trailing columns that no row has (an instrument's `Comment`
         // over rows of numbers only): they are left out if they name no signal.
-        if let (Some(n), Some((_, row))) = (names.as_mut(), lines.peek()) {
+        if let (Some(n), Some((_, row))) = (names.as_mut(), rows_ahead.first()) {
             let row_width = fields(row, sep).len();
             if row_width < width && n[row_width..].iter().all(|x| recognise(x).0.is_none()) {
                 n.truncate(row_width);
@@ -893,6 +993,9 @@ pub fn import_text(text: &str, source: &str, opts: &ImportOptions) -> Result<Imp
     let recognised: Vec<(Option<Col>, Option<f64>, bool)> =
         names.as_ref().map_or_else(Vec::new, |n| n.iter().map(|s| recognise(s)).collect());
     let given = opts.columns.clone().unwrap_or_default();
+    // Named columns that are none of the record's (without --columns): refused if a row fills
+    // them.
+    let mut unnamed_roles: Vec<usize> = Vec::new();
     for (r, &col) in roles.iter().enumerate() {
         let Some(want) = given.get(col) else { continue };
         let idx = match want {
@@ -943,7 +1046,9 @@ pub fn import_text(text: &str, source: &str, opts: &ImportOptions) -> Result<Imp
             return Err(err(first_line, kind));
         }
         slot[r] = Some(idx);
-        scale_from_header[r] = recognised.get(idx).and_then(|x| x.1);
+        // The unit is the header's whatever picks the column: a name --columns gives for a
+        // role may be one the importer does not know (`Zeit [ms]`), its unit still holds.
+        scale_from_header[r] = names.as_ref().and_then(|n| stated_scale(&n[idx], col));
     }
     if header {
         // Roles not given are found by their names.
@@ -982,15 +1087,13 @@ pub fn import_text(text: &str, source: &str, opts: &ImportOptions) -> Result<Imp
             // Without --columns every named column must be one of the record's: a typo must
             // not silently drop a signal. A column empty on every row (an instrument's
             // `Comment`) carries none.
+            // Checked on the rows read ahead now, on the others as they are read.
             let names = names.as_deref().unwrap_or_default();
-            let empty_throughout =
-                |i: usize| lines.clone().all(|(_, l)| fields(l, sep).get(i).is_none_or(|f| f.is_empty()));
-            if let Some(i) = (0..width).find(|&i| {
-                !names[i].is_empty()
-                    && !slot.contains(&Some(i))
-                    && !is_index(&names[i])
-                    && !empty_throughout(i)
-            }) {
+            unnamed_roles = (0..width)
+                .filter(|&i| !names[i].is_empty() && !slot.contains(&Some(i)) && !is_index(&names[i]))
+                .collect();
+            let filled = |i: usize, l: &str| fields(l, sep).get(i).is_some_and(|f| !f.is_empty());
+            if let Some(&i) = unnamed_roles.iter().find(|&&i| rows_ahead.iter().any(|(_, l)| filled(i, l))) {
                 let kind = ErrorKind::UnknownColumn { name: excerpt(&names[i]), found: found() };
                 return Err(err(first_line, kind));
             }
@@ -1040,34 +1143,58 @@ pub fn import_text(text: &str, source: &str, opts: &ImportOptions) -> Result<Imp
     wanted.sort_by_key(|w| w.0);
     let has_d = slot[3].is_some();
 
-    // Rows.
-    let rows_hint = text.bytes().filter(|&b| b == b'\n').count() + 1;
+    // Rows. The storage is reserved for the rows the file's size suggests (at the length of
+    // the rows read ahead).
+    let row_bytes = rows_ahead.iter().map(|(_, l)| l.len() + 1).sum::<usize>().max(1) as f64
+        / rows_ahead.len().max(1) as f64;
+    let rows_hint = ((bytes as f64 / row_bytes) * 1.02) as usize + 16;
     let mut t = Vec::with_capacity(if time_col.is_some() { rows_hint } else { 0 });
-    let mut t_unit = Vec::with_capacity(t.capacity());
-    let mut line_of = Vec::with_capacity(rows_hint);
+    // The unit of each time's last digit, as its power of ten (`t_scale` applies to all).
+    let mut t_digit: Vec<i16> = Vec::with_capacity(t.capacity());
+    let mut line_of = LineMap::default();
     let mut u = Vec::with_capacity(rows_hint);
     let mut y = Vec::with_capacity(rows_hint);
     let mut d = Vec::with_capacity(if has_d { rows_hint } else { 0 });
     let mut cut_short = None;
-    let mut missing: Vec<(usize, usize, String)> = Vec::new();
-    for (line_no, line) in lines {
+    // Samples of y the file leaves missing, and the first one's line and text.
+    let mut missing: Vec<usize> = Vec::new();
+    let mut first_missing: Option<(usize, String)> = None;
+    let unknown = |i: usize| -> RecordError {
+        let names = names.as_deref().unwrap_or_default();
+        err(
+            first_line,
+            ErrorKind::UnknownColumn { name: excerpt(&names[i]), found: found_list(Some(names), width) },
+        )
+    };
+    let mut lines = TableLines {
+        ahead: read_ahead.into_iter().skip(start + usize::from(header)).collect(),
+        current: String::new(),
+        rest,
+    };
+    while let Some((line_no, line, ended)) = lines.next_line()? {
         let f = fields(line, sep);
         // A trailing separator on data rows only is tolerated.
         let n_fields =
             if f.len() > width && f[width..].iter().all(|x| x.is_empty()) { width } else { f.len() };
         if n_fields != width {
-            if n_fields < width && Some(line_no) == unended {
+            if n_fields < width && !ended {
                 // The file stops inside its last row (a logger stopped mid-write).
                 cut_short = Some(line_no);
                 break;
             }
             return Err(err(line_no, ErrorKind::FieldCount { expected: width, found: f.len() }));
         }
+        if let Some(&i) = unnamed_roles.iter().find(|&&i| !f[i].is_empty()) {
+            return Err(unknown(i));
+        }
         for &(i, col, scale) in &wanted {
             let field = f[i];
             if col == Col::Y && (field.is_empty() || field.eq_ignore_ascii_case("nan")) {
                 // A sensor's missing sample: filled below if it is one of a few.
-                missing.push((y.len(), line_no, excerpt(field)));
+                missing.push(y.len());
+                if first_missing.is_none() {
+                    first_missing = Some((line_no, excerpt(field)));
+                }
                 y.push(f64::NAN);
                 continue;
             }
@@ -1095,26 +1222,25 @@ pub fn import_text(text: &str, source: &str, opts: &ImportOptions) -> Result<Imp
                         }
                     }
                     t.push(v);
-                    t_unit.push(last_digit_unit(&field.replacen(',', ".", usize::from(dc))) * scale);
+                    t_digit.push(last_digit_exp(field, dc));
                 }
                 Col::U => u.push(v),
                 Col::Y => y.push(v),
                 Col::D => d.push(v),
             }
         }
-        line_of.push(line_no);
+        line_of.push(u.len() - 1, line_no);
     }
-
     let n = u.len();
     if n < MIN_SAMPLES {
         return Err(whole(ErrorKind::TooFewSamples { found: n, needed: MIN_SAMPLES }));
     }
     let filled = if missing.is_empty() {
         None
-    } else if let Some(count) = fill_missing(&mut y, missing.iter().map(|m| m.0)) {
+    } else if let Some(count) = fill_missing(&mut y, missing.iter().copied()) {
         Some(count)
     } else {
-        let (_, line_no, text) = missing.swap_remove(0);
+        let (line_no, text) = first_missing.unwrap_or_default();
         let kind = if text.is_empty() {
             ErrorKind::NotANumber { column: "y".into(), text }
         } else {
@@ -1122,18 +1248,18 @@ pub fn import_text(text: &str, source: &str, opts: &ImportOptions) -> Result<Imp
         };
         return Err(err(line_no, kind));
     };
+    let t_unit = |k: usize| 10f64.powi(i32::from(t_digit[k])) * t_scale;
     let (t0, ts, time) = match time_col {
         Some(i) => {
-            let mut steps: Vec<f64> = t.windows(2).map(|w| w[1] - w[0]).collect();
-            let mid = steps.len() / 2;
-            let median = *steps.select_nth_unstable_by(mid, f64::total_cmp).1;
+            // The median step, without a copy of the steps.
+            let median = super::select::nth(n - 1, (n - 1) / 2, |k| t[k + 1] - t[k]);
             for k in 1..n {
                 let dt = t[k] - t[k - 1];
-                let written = (0.5 * (t_unit[k] + t_unit[k - 1])).min(0.5 * median);
+                let written = (0.5 * (t_unit(k) + t_unit(k - 1))).min(0.5 * median);
                 let roundoff = 4.0 * f64::EPSILON * (t[k].abs() + t[k - 1].abs());
                 let tolerance = UNIFORM_TOLERANCE * median + written + roundoff;
                 if (dt - median).abs() > tolerance {
-                    return Err(err(line_of[k], ErrorKind::NonUniform { dt, median, tolerance }));
+                    return Err(err(line_of.line(k), ErrorKind::NonUniform { dt, median, tolerance }));
                 }
             }
             // The ends as written are each off by half their last digit's unit (and by f64's
@@ -1141,10 +1267,10 @@ pub fn import_text(text: &str, source: &str, opts: &ImportOptions) -> Result<Imp
             // within that is the interval (a Unix-time axis of a 1 kHz record reads 0.001 s,
             // not 0.0010000000181).
             let spread =
-                0.5 * (t_unit[0] + t_unit[n - 1]) + 4.0 * f64::EPSILON * (t[0].abs() + t[n - 1].abs());
+                0.5 * (t_unit(0) + t_unit(n - 1)) + 4.0 * f64::EPSILON * (t[0].abs() + t[n - 1].abs());
             let ts = plainest((t[n - 1] - t[0]) / (n - 1) as f64, spread / (n - 1) as f64);
             let name = names.as_ref().map_or_else(|| (i + 1).to_string(), |n| excerpt(&n[i]));
-            if t_stated.is_none() && ts >= 1.0 && t_unit.iter().all(|&r| r >= 1.0) {
+            if t_stated.is_none() && ts >= 1.0 && (0..n).all(|k| t_unit(k) >= 1.0) {
                 return Err(whole(ErrorKind::TimeUnitUnstated { column: name, step: ts }));
             }
             if let Some(hz) = opts.sample_rate_hz {
@@ -1159,12 +1285,14 @@ pub fn import_text(text: &str, source: &str, opts: &ImportOptions) -> Result<Imp
             (0.0, 1.0 / hz, TimeSource::SampleRate(hz))
         }
     };
+    // The times are the interval now.
+    drop((t, t_digit, line_of));
     if !(TS_MIN_S..=TS_MAX_S).contains(&ts) {
         return Err(whole(ErrorKind::SampleInterval(ts)));
     }
     // An output that spans less than a nanometre or more than 10 mm as read is likely in
     // another unit.
-    let (lo, hi) = crate::analysis::extent(&y);
+    let (lo, hi) = y.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &v| (a.min(v), b.max(v)));
     let span = hi - lo;
     if span > 0.0 && !(MIN_SPAN_UM..=MAX_SPAN_UM).contains(&span) {
         let kind = ErrorKind::OutputSpan {
@@ -1187,7 +1315,7 @@ pub fn import_text(text: &str, source: &str, opts: &ImportOptions) -> Result<Imp
         })
         .collect();
 
-    let missing = filled.map(|count| MissingNote { count, first_s: t0 + missing[0].0 as f64 * ts });
+    let missing = filled.map(|count| MissingNote { count, first_s: t0 + missing[0] as f64 * ts });
     let spikes = if opts.keep_spikes { None } else { super::spikes::repair(&mut y) }.map(|s| SpikeNote {
         count: s.indices.len(),
         departure_um: [s.min_departure, s.max_departure],
@@ -1224,11 +1352,19 @@ fn plainest(x: f64, tolerance: f64) -> f64 {
 
 /// The unit of the last digit of a decimal number as written: `0.0003` → 1e-4,
 /// `1.5e-3` → 1e-4, `12` → 1.
+#[cfg(test)]
 pub(super) fn last_digit_unit(text: &str) -> f64 {
+    10f64.powi(i32::from(last_digit_exp(text, false)))
+}
+
+/// The power of ten of [`last_digit_unit`] (with `decimal_comma`, a comma is the decimal
+/// mark), within ±400 (beyond, the unit is 0 or infinite in `f64` all the same).
+fn last_digit_exp(text: &str, decimal_comma: bool) -> i16 {
     let (mantissa, exp) = match text.find(['e', 'E']) {
         Some(i) => (&text[..i], text[i + 1..].parse::<i32>().unwrap_or(0)),
         None => (text, 0),
     };
-    let decimals = mantissa.find('.').map_or(0, |i| mantissa.len() - i - 1);
-    10f64.powi(exp.saturating_sub(decimals.min(400) as i32))
+    let mark = if decimal_comma { mantissa.find(['.', ',']) } else { mantissa.find('.') };
+    let decimals = mark.map_or(0, |i| mantissa.len() - i - 1);
+    exp.saturating_sub(decimals.min(400) as i32).clamp(-400, 400) as i16
 }

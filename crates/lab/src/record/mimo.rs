@@ -20,7 +20,7 @@
 //!
 //! Inputs are kept in V and outputs in µm, whatever the files' units.
 
-use super::import::{LengthUnit, VoltUnit};
+use super::import::{ColumnRef, LengthUnit, VoltUnit};
 use super::npy::{self, NpyArray, NpyError};
 use std::collections::BTreeMap;
 use std::fmt;
@@ -42,6 +42,90 @@ pub struct MimoOptions {
     pub period_samples: Option<usize>,
     /// Only levels whose tag contains this text (e.g. `"train"`).
     pub only: Option<String>,
+    /// Which CSV columns are the time, the inputs and the outputs (`None`: the header's
+    /// names `t`, `u1..`, `y1..`).
+    pub columns: Option<MimoColumns>,
+}
+
+/// `--columns t=NAME|N,u=NAME|N,NAME|N,…,y=NAME|N,…`: the CSV columns of a record with
+/// several inputs and outputs, by header name (case-insensitive) or position (from 1). The
+/// names after `u=` up to the next `ROLE=` are the inputs, in order; likewise the outputs.
+///
+/// ```
+/// use boucwen_lab::record::mimo::MimoColumns;
+/// use boucwen_lab::record::ColumnRef;
+/// let c: MimoColumns = "t=time,u=u1,u2,u3,y=4,5".parse()?;
+/// assert_eq!(c.u.len(), 3);
+/// assert_eq!(c.y, vec![ColumnRef::Index(4), ColumnRef::Index(5)]);
+/// assert!("u=a,b".parse::<MimoColumns>().is_err()); // no output
+/// # Ok::<(), String>(())
+/// ```
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct MimoColumns {
+    /// The time column.
+    pub t: Option<ColumnRef>,
+    /// The input columns, in order.
+    pub u: Vec<ColumnRef>,
+    /// The output columns, in order.
+    pub y: Vec<ColumnRef>,
+}
+
+impl MimoColumns {
+    /// Whether the spec names more than one input or output (a one-input one-output spec is
+    /// the importer's `--columns`).
+    pub fn is_mimo(&self) -> bool {
+        self.u.len() > 1 || self.y.len() > 1
+    }
+}
+
+impl std::str::FromStr for MimoColumns {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        let bad = |what: &str| format!("--columns {s:?}: {what}");
+        let mut m = MimoColumns::default();
+        let mut role: Option<char> = None;
+        for part in s.split(',') {
+            let (r, col) = match part.split_once('=') {
+                Some((r, c)) => {
+                    let r = match r.trim().to_ascii_lowercase().as_str() {
+                        "t" => 't',
+                        "u" => 'u',
+                        "y" => 'y',
+                        _ => return Err(bad("roles are t, u and y (e.g. t=time,u=u1,u2,y=y1,y2)")),
+                    };
+                    let taken = match r {
+                        't' => m.t.is_some(),
+                        'u' => !m.u.is_empty(),
+                        _ => !m.y.is_empty(),
+                    };
+                    if taken {
+                        return Err(bad("each role once"));
+                    }
+                    (r, c.trim())
+                }
+                None => match role {
+                    Some(r @ ('u' | 'y')) => (r, part.trim()),
+                    _ => return Err(bad("a list of columns follows u= or y= only")),
+                },
+            };
+            role = Some(r);
+            let c = match col.parse::<usize>() {
+                Ok(0) => return Err(bad("positions count from 1")),
+                Ok(i) => ColumnRef::Index(i),
+                Err(_) if col.is_empty() => return Err(bad("an empty column name")),
+                Err(_) => ColumnRef::Name(col.to_string()),
+            };
+            match r {
+                't' => m.t = Some(c),
+                'u' => m.u.push(c),
+                _ => m.y.push(c),
+            }
+        }
+        if m.u.is_empty() || m.y.is_empty() {
+            return Err(bad("needs u= and y= columns"));
+        }
+        Ok(m)
+    }
 }
 
 impl Default for MimoOptions {
@@ -52,6 +136,7 @@ impl Default for MimoOptions {
             y_unit: LengthUnit::Um,
             period_samples: None,
             only: None,
+            columns: None,
         }
     }
 }
@@ -266,6 +351,27 @@ impl MimoRecord {
         Ok(())
     }
 
+    /// Reads a record of several inputs and outputs: a folder of `u_TAG`/`y_TAG` NumPy files
+    /// ([`Self::read_npy_folder`]), one `.npz` archive with such members, or a CSV table
+    /// ([`Self::read_csv`]).
+    pub fn read(path: impl AsRef<Path>, opts: &MimoOptions) -> Result<Self, MimoError> {
+        let path = path.as_ref();
+        if path.is_dir() {
+            Self::read_npy_folder(path, opts)
+        } else if path.extension().is_some_and(|x| x == "npz" || x == "npy") {
+            Self::read_npy_files(path.display().to_string(), &[path.to_path_buf()], opts)
+        } else {
+            Self::read_csv(path, opts)
+        }
+    }
+
+    /// Whether `path` is read as a record of several inputs and outputs whatever its
+    /// columns: a folder, or a NumPy file.
+    pub fn is_numpy(path: impl AsRef<Path>) -> bool {
+        let path = path.as_ref();
+        path.is_dir() || path.extension().is_some_and(|x| x == "npz" || x == "npy")
+    }
+
     /// Reads every `u_TAG`/`y_TAG` pair of `.npy` files (and of `.npz` members) in `dir`.
     ///
     /// ```no_run
@@ -277,9 +383,6 @@ impl MimoRecord {
     pub fn read_npy_folder(dir: impl AsRef<Path>, opts: &MimoOptions) -> Result<Self, MimoError> {
         let dir = dir.as_ref();
         let source = dir.display().to_string();
-        let fs = opts
-            .sample_rate_hz
-            .ok_or_else(|| invalid(&source, "NumPy files carry no sample rate: give one"))?;
         let io = |error| MimoError::Io { path: source.clone(), error };
         let mut paths: Vec<PathBuf> = std::fs::read_dir(dir)
             .map_err(io)?
@@ -287,10 +390,41 @@ impl MimoRecord {
             .filter(|p| p.extension().is_some_and(|x| x == "npy" || x == "npz"))
             .collect();
         paths.sort();
+        Self::read_npy_files(source, &paths, opts)
+    }
+
+    /// The `u_TAG`/`y_TAG` pairs among `paths` (`.npy` files named so, members of `.npz`
+    /// archives named so; a lone `.npy` file `u_TAG.npy` brings its `y_TAG.npy` beside it).
+    fn read_npy_files(source: String, paths: &[PathBuf], opts: &MimoOptions) -> Result<Self, MimoError> {
+        let fs = opts
+            .sample_rate_hz
+            .ok_or_else(|| invalid(&source, "NumPy files carry no sample rate: give --sample-rate HZ"))?;
+        let mut paths = paths.to_vec();
+        if let [one] = paths.as_slice() {
+            let stem = one.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
+            if one.extension().is_some_and(|x| x == "npy") {
+                let other = match stem.strip_prefix("u_") {
+                    Some(tag) => format!("y_{tag}.npy"),
+                    None => match stem.strip_prefix("y_") {
+                        Some(tag) => format!("u_{tag}.npy"),
+                        None => {
+                            return Err(invalid(
+                                &source,
+                                "a NumPy file of a record is named u_TAG.npy or y_TAG.npy",
+                            ));
+                        }
+                    },
+                };
+                paths.push(one.with_file_name(other));
+            }
+        }
         let mut u: BTreeMap<String, (String, NpyArray)> = BTreeMap::new();
         let mut y: BTreeMap<String, (String, NpyArray)> = BTreeMap::new();
         let mut put = |name: &str, from: String, a: NpyArray| {
-            if let Some(tag) = name.strip_prefix("u_") {
+            if name == "u" || name == "y" {
+                let side = if name == "u" { &mut u } else { &mut y };
+                side.insert(String::new(), (from, a));
+            } else if let Some(tag) = name.strip_prefix("u_") {
                 u.insert(tag.to_string(), (from, a));
             } else if let Some(tag) = name.strip_prefix("y_") {
                 y.insert(tag.to_string(), (from, a));
@@ -305,7 +439,11 @@ impl MimoRecord {
                 }
             } else {
                 for (name, a) in npy::read_npz(p)? {
-                    if (name.starts_with("u_") || name.starts_with("y_")) && wanted(&name[2..]) {
+                    let tag = name.get(2..).unwrap_or("");
+                    if name == "u"
+                        || name == "y"
+                        || ((name.starts_with("u_") || name.starts_with("y_")) && wanted(tag))
+                    {
                         put(&name, format!("{}:{name}", p.display()), a);
                     }
                 }
@@ -384,7 +522,26 @@ impl MimoRecord {
         let mut t_col = None;
         let mut u_cols: Vec<(usize, usize)> = Vec::new();
         let mut y_cols: Vec<(usize, usize)> = Vec::new();
-        for (i, n) in names.iter().enumerate() {
+        if let Some(c) = &opts.columns {
+            let find = |r: &ColumnRef| -> Result<usize, MimoError> {
+                let i = match r {
+                    ColumnRef::Index(i) => Some(i - 1).filter(|&i| i < names.len()),
+                    ColumnRef::Name(n) => names.iter().position(|h| h.eq_ignore_ascii_case(n)),
+                };
+                i.ok_or_else(|| {
+                    invalid(
+                        source,
+                        format!("--columns names {r}: no such column (columns found: {})", names.join(", ")),
+                    )
+                })
+            };
+            t_col = c.t.as_ref().map(find).transpose()?;
+            u_cols =
+                c.u.iter().map(find).enumerate().map(|(k, i)| i.map(|i| (k, i))).collect::<Result<_, _>>()?;
+            y_cols =
+                c.y.iter().map(find).enumerate().map(|(k, i)| i.map(|i| (k, i))).collect::<Result<_, _>>()?;
+        }
+        for (i, n) in names.iter().enumerate().filter(|_| opts.columns.is_none()) {
             let l = n.to_ascii_lowercase();
             if l == "t" || l == "time" {
                 t_col = Some(i);

@@ -111,10 +111,11 @@ mod import;
 pub mod mimo;
 pub mod npy;
 mod replay;
+mod select;
 pub mod spikes;
 mod write;
 
-pub use error::{At, EXCERPT_CHARS, ErrorKind, RecordError, excerpt};
+pub use error::{At, EXCERPT_CHARS, ErrorKind, RecordError, excerpt, for_people};
 pub use import::{
     ColumnMap, ColumnRef, ImportInfo, ImportOptions, Imported, LengthUnit, MAX_SPAN_UM, MIN_SPAN_UM,
     MissingNote, OptionError, Preamble, Separator, SpikeNote, TimeSource, TimeUnit, VoltUnit, import,

@@ -166,6 +166,60 @@ fn time_not_increasing() {
     assert!(e.to_string().starts_with("data.csv:3: column \"t\""), "{e}");
 }
 
+/// Issue 29, item 4: numbers are written for people (`t = 1e300` was printed with 301
+/// digits), and no message carries a line or paragraph separator (U+2028, U+2029) from a
+/// file's text: the header's names are shown with `?` for them, as for control characters.
+#[test]
+fn messages_write_numbers_for_people_and_stay_one_line() {
+    let e = parse_err("t,u,y\n1e300,0,0\n1,0,0\n");
+    assert_eq!(e.to_string(), r#"data.csv:3: column "t": 1 does not increase from the previous row's 1e300"#);
+    let e = parse_err("t,u,y\n0,0,0\n0.001,1e-300,2.5e-9\n0.002,1500,0\n");
+    assert_eq!(
+        e.to_string(),
+        r#"data.csv:4: column "u": 1500 is beyond ±1000 V (if u is in mV, give --u-unit mV)"#
+    );
+    let e = parse_err("t,u,y\n0,0,0\n1,1,1e20\n");
+    assert!(
+        e.to_string().ends_with(r#"column "y": 1e20 is beyond ±100000 µm (if y is in nm, give --y-unit nm)"#),
+        "{e}"
+    );
+    let e = parse_err("t,u,y\n0,0,0\n1e17,0,1\n2e17,1,0\n");
+    assert!(e.to_string().contains("whole numbers 1e17 apart"), "{e}");
+    let text = "t,u,y,dis\u{2028}p\u{2029}\u{202e}x\n0,0,0,1\n0.001,1,1,2\n";
+    let e = parse_err(text).to_string();
+    assert!(!e.contains(['\u{2028}', '\u{2029}', '\u{202e}']), "{e:?}");
+    assert!(e.contains("dis?p??x"), "{e}");
+    let opts = ImportOptions { columns: Some("u=u,y=nope".parse().unwrap()), ..ImportOptions::default() };
+    let e = import_text(text, "data.csv", &opts).unwrap_err().to_string();
+    assert!(e.contains("(columns found: t, u, y, dis?p??x)"), "{e:?}");
+}
+
+/// Issue 29, item 6: with `--columns` the unit comes from the header all the same (the
+/// times of `Zeit [ms]` were refused as unit-less, and `mV`, `nm` dropped).
+#[test]
+fn columns_given_by_position_keep_the_headers_units() {
+    let text = "Zeit [ms];Spannung (mV);Weg_nm\n0;0;0\n1;500;1000\n2;-500;-1000\n3;0;0\n";
+    let opts = ImportOptions { columns: Some("t=1,u=2,y=3".parse().unwrap()), ..ImportOptions::default() };
+    let i = import_with(text, &opts).unwrap();
+    assert_eq!((i.record.ts, i.record.u[1], i.record.y[1]), (1e-3, 0.5, 1.0));
+    assert_eq!(
+        (i.info.t_unit, i.info.u_unit, i.info.y_unit),
+        (TimeUnit::Ms, VoltUnit::MilliV, LengthUnit::Nm)
+    );
+    // The same by name, and a name that is only a unit.
+    let opts = ImportOptions {
+        columns: Some("t=zeit [ms],u=Spannung (mV),y=weg_nm".parse().unwrap()),
+        ..ImportOptions::default()
+    };
+    assert_eq!(import_with(text, &opts).unwrap().record.ts, 1e-3);
+    let opts = ImportOptions { columns: Some("t=1,u=2,y=3".parse().unwrap()), ..ImportOptions::default() };
+    let r = import_with("ms,V,um\n0,0,0\n1,1,1\n2,0,0\n", &opts).unwrap().record;
+    assert_eq!((r.ts, r.u[1], r.y[1]), (1e-3, 1.0, 1.0));
+    // A flag still overrides the header.
+    let opts = ImportOptions { t_unit: Some(TimeUnit::Us), ..opts };
+    assert_eq!(import_with("ms,V,um\n0,0,0\n1,1,1\n2,0,0\n", &opts).unwrap().record.ts, 1e-6);
+}
+
 #[test]
 fn non_uniform_sampling_and_dropped_sample() {
     // A dropped sample (the step at line 5 is 2 ms).
