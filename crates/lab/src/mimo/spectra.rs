@@ -6,7 +6,9 @@
 //! σ²_k = (1/(P(P−1))) Σ_p |X_{p,k} − X_k|²                   (noise variance of X_k)
 //! ```
 //! A line is *excited* when the inputs' power there, summed over channels and realisations,
-//! is above [`EXCITED_FRACTION`] of its median over the lines that have any.
+//! is above [`EXCITED_FRACTION`] of the strongest line's (a multisine that excites only part
+//! of the band leaves the other lines at the rounding error, which a median would take as the
+//! reference when they are more than half the lines).
 
 use super::MimoError;
 use crate::record::mimo::{Level, MimoRecord};
@@ -16,7 +18,8 @@ use rustfft::FftPlanner;
 /// Complex `f64`.
 pub type C64 = Complex<f64>;
 
-/// A line is excited when its input power is above this fraction of the median line's.
+/// A line is excited when its input power is above this fraction of the strongest line's
+/// (−30 dB).
 pub const EXCITED_FRACTION: f64 = 1e-3;
 
 /// The lines of one level.
@@ -92,13 +95,11 @@ impl Spectra {
                 }
             }
         }
-        let mut sorted: Vec<f64> = power.iter().copied().filter(|&v| v > 0.0).collect();
-        if sorted.is_empty() {
+        let strongest = power.iter().copied().fold(0.0, f64::max);
+        if strongest <= 0.0 {
             return Err(MimoError::Data("the inputs are zero".into()));
         }
-        sorted.sort_by(f64::total_cmp);
-        let median = sorted[sorted.len() / 2];
-        let excited = power.iter().map(|&v| v > EXCITED_FRACTION * median).collect();
+        let excited = power.iter().map(|&v| v > EXCITED_FRACTION * strongest).collect();
         Ok(Self { samples: n, inputs: m, outputs: p, excited, levels })
     }
 }

@@ -38,6 +38,9 @@ pub struct Growth {
     pub nonlinear_um: Vec<Vec<f64>>,
     /// Per output: its share of the output's RMS per level.
     pub share: Vec<Vec<f64>>,
+    /// Per output: the noise of the period mean per level, µm (a distortion below it is not
+    /// told apart from the noise).
+    pub noise_um: Vec<Vec<f64>>,
 }
 
 impl Growth {
@@ -50,12 +53,22 @@ impl Growth {
         Self {
             nonlinear_um: col(&|s| s.nonlinear_rms),
             share: col(&|s| s.nonlinear_rms / s.output_rms.max(f64::MIN_POSITIVE)),
+            noise_um: col(&|s| s.noise_rms),
         }
     }
 
-    /// Whether output `o`'s distortion rises from each level to the next (µm).
+    /// Whether output `o`'s distortion is above the noise at the loudest level.
+    pub fn above_noise(&self, o: usize) -> bool {
+        match (self.nonlinear_um[o].last(), self.noise_um[o].last()) {
+            (Some(d), Some(n)) => d > n,
+            _ => false,
+        }
+    }
+
+    /// Whether output `o`'s distortion rises from each level to the next (µm) and stands
+    /// above the noise at the loudest.
     pub fn grows(&self, o: usize) -> bool {
-        self.nonlinear_um[o].windows(2).all(|w| w[1] > w[0])
+        self.above_noise(o) && self.nonlinear_um[o].windows(2).all(|w| w[1] > w[0])
     }
 }
 
@@ -101,7 +114,13 @@ pub fn diagnosis_text(rec: &MimoRecord, diags: &[LevelDiagnosis]) -> String {
                 o + 1,
                 seq(&g.nonlinear_um[o], &|x| format!("{x:.4}")),
                 seq(&g.share[o], &|x| format!("{:.1} %", 100.0 * x)),
-                if g.grows(o) { "grows with the level" } else { "does not grow at every level" }
+                if !g.above_noise(o) {
+                    "at the noise level"
+                } else if g.grows(o) {
+                    "grows with the level"
+                } else {
+                    "does not grow at every level"
+                }
             );
         }
     }
@@ -141,7 +160,8 @@ pub fn diagnosis_json(rec: &MimoRecord, diags: &[LevelDiagnosis]) -> Value {
         "inputs": m, "outputs": p, "samples_per_period": n, "sample_rate_hz": rec.sample_rate_hz,
         "levels": splits_json(rec, diags),
         "nonlinear_growth": (0..g.nonlinear_um.len()).map(|o| json!({
-            "output": o + 1, "nonlinear_um": g.nonlinear_um[o], "share": g.share[o], "grows": g.grows(o),
+            "output": o + 1, "nonlinear_um": g.nonlinear_um[o], "share": g.share[o],
+            "above_noise": g.above_noise(o), "grows": g.grows(o),
         })).collect::<Vec<_>>(),
     })
 }
