@@ -44,6 +44,9 @@ use super::model::{Branch, Channel, Envelope, MimoModel, Schedule, ScheduledMode
 use nalgebra::{DMatrix, DVector};
 use rayon::prelude::*;
 
+/// Normal equations `(JᵀJ, Jᵀr)` of the free parameters.
+type Normal = (DMatrix<f64>, DVector<f64>);
+
 /// Steady-state periods to fit: per realisation the mean input and output period and the
 /// weight of its squared errors.
 #[derive(Clone, Debug)]
@@ -231,6 +234,7 @@ struct Forcing<'a> {
 
 /// Runs one mode on its drive `bu` (`B_b u`, `[state][k]` over the warm-up and the scored
 /// period, `2N`), with the sensitivities to its own parameters (when `grad`) and to `extra`.
+#[allow(clippy::needless_range_loop)] // k indexes the input and, past the warm-up, the outputs
 fn run_mode(
     mp: &ModeParams,
     bu: &[Vec<f64>; 2],
@@ -516,11 +520,7 @@ impl Problem<'_> {
 
     /// The reduced normal equations at `pr` with `(C, D)` = `ev.theta` (rows: states, inputs;
     /// columns: outputs).
-    fn normal_equations(
-        &self,
-        pr: &Params,
-        ev: &Evaluated,
-    ) -> Result<Option<(DMatrix<f64>, DVector<f64>)>, MimoError> {
+    fn normal_equations(&self, pr: &Params, ev: &Evaluated) -> Result<Option<Normal>, MimoError> {
         let d = self.data;
         let (p, len) = (d.outputs, d.samples);
         let nmode = pr.mode_count();
@@ -545,9 +545,9 @@ impl Problem<'_> {
                         let target = if j < mp.count() { col + j } else { nmode + j - mp.count() };
                         let mut cj = jac.column_mut(target);
                         for o in 0..p {
-                            for i in 0..sz {
+                            for (i, dxji) in dxj.iter().enumerate().take(sz) {
                                 let c = ev.theta[(at + i, o)] * sw;
-                                for (v, dv) in cj.rows_mut(o * len, len).iter_mut().zip(&dxj[i]) {
+                                for (v, dv) in cj.rows_mut(o * len, len).iter_mut().zip(dxji) {
                                     *v += c * dv;
                                 }
                             }
