@@ -63,6 +63,8 @@ pub fn identify(rec: &MimoRecord, a: &IdentifyMimo) -> Result<(), String> {
             model: fit.model.clone(),
             fitted_on: Some(rec.source.clone()),
             held_out_um: held.unwrap_or_default(),
+            rate_given: rec.rate_given,
+            period_samples: Some(rec.dims().2),
         };
         f.write(path).map_err(|e| e.to_string())?;
         eprintln!("wrote {}", path.display());
@@ -75,7 +77,7 @@ pub fn identify(rec: &MimoRecord, a: &IdentifyMimo) -> Result<(), String> {
 pub fn compare(model_path: &Path, rec: &MimoRecord, json: bool) -> Result<(), String> {
     let f = MimoModelFile::read(model_path).map_err(|e| e.to_string())?;
     let fs = f.model.sample_rate_hz;
-    if ((rec.sample_rate_hz - fs) / fs).abs() > 1e-6 {
+    if f.rate_given && rec.rate_given && ((rec.sample_rate_hz - fs) / fs).abs() > 1e-6 {
         return Err(format!("{}: sampled at {} Hz, the model at {fs} Hz", rec.source, rec.sample_rate_hz));
     }
     let levels = rec

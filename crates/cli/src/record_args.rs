@@ -93,11 +93,16 @@ impl RecordArgs {
             sample_rate_hz: self.sample_rate,
             u_unit: self.u_unit.unwrap_or(VoltUnit::V),
             y_unit: self.y_unit.unwrap_or(LengthUnit::Um),
+            infer_y_unit: self.y_unit.is_none(),
             period_samples: self.period_samples,
             only: None,
             columns,
         };
-        MimoRecord::read(path, &opts).map_err(|e| e.to_string())
+        let rec = MimoRecord::read(path, &opts).map_err(|e| e.to_string())?;
+        for note in &rec.notes {
+            eprintln!("{}: {note}", rec.source);
+        }
+        Ok(rec)
     }
 
     /// Whether `--window` was given.

@@ -5,6 +5,7 @@
 //! scenario's. The record (`t,u,y`) is written atomically.
 
 use crate::design::closed_loop;
+use crate::mimo::model::Warmup;
 use crate::model::{ModelError, ModelFile, ModelFileError};
 use crate::record::{Record, RecordError};
 use crate::signal::analysis;
@@ -179,7 +180,9 @@ pub fn run(scenario: &Scenario, drive: &Drive, out: &Path) -> Result<Summary, Si
     let ts = scenario.sampling.ts_s;
     let u = match drive {
         Drive::Sine { freq_hz, amplitude_v, seconds } => sine_drive(*freq_hz, *amplitude_v, *seconds, ts)?,
-        Drive::Column { path, name } => column_drive(path, name, ts, "the virtual bimorph", SCENARIO_HINT)?,
+        Drive::Column { path, name } => {
+            column_drive(path, name, Some(ts), "the virtual bimorph", SCENARIO_HINT)?
+        }
     };
     let y = Bimorph::new(scenario)?.run(&u)?;
     let record = Record::new(&out.display().to_string(), 0.0, ts, u, y, None)?;
@@ -247,7 +250,7 @@ pub fn run_model(model: &Path, input: &Path, name: &str, out: &Path) -> Result<S
     let u = column_drive(
         input,
         name,
-        ts,
+        Some(ts),
         "the model",
         "resample the drive; the model was fitted at this interval",
     )?;
@@ -269,10 +272,37 @@ pub fn run_model(model: &Path, input: &Path, name: &str, out: &Path) -> Result<S
     })
 }
 
+/// Two periods of a drive agree when the RMS of their difference is below this fraction of
+/// the drive's RMS (the Fine Steering Mirror's measured inputs: 0.04 %).
+pub const PERIOD_TOLERANCE: f64 = 0.01;
+
+/// Whether every drive is a whole number of periods of `n` samples, its periods agreeing within
+/// [`PERIOD_TOLERANCE`] (one period counts).
+fn whole_periods(drives: &[Vec<f64>], n: usize) -> bool {
+    drives.iter().all(|d| {
+        if n == 0 || d.is_empty() || d.len() % n != 0 {
+            return false;
+        }
+        let ms = |v: &mut dyn Iterator<Item = f64>| v.map(|x| x * x).sum::<f64>();
+        let total = ms(&mut d.iter().copied()) / d.len() as f64;
+        d.chunks(n).skip(1).all(|p| {
+            let diff = ms(&mut p.iter().zip(&d[..n]).map(|(a, b)| a - b)) / n as f64;
+            diff <= PERIOD_TOLERANCE * PERIOD_TOLERANCE * total
+        })
+    })
+}
+
 /// [`run_model`] for a model of several inputs and outputs.
+///
+/// A model fitted without a sample rate takes the drive's rows as its samples, whatever its
+/// time column says; the output keeps the drive's `t` column when it has one. A drive of whole
+/// periods of the model's training period (agreeing within [`PERIOD_TOLERANCE`]; one period
+/// counts) is periodic: it runs once before the written pass, so the output is the periodic
+/// steady state; any other drive runs from rest.
 fn run_mimo_model(model: &Path, input: &Path, names: &str, out: &Path) -> Result<Summary, SimulateError> {
-    let m = crate::mimo::MimoModelFile::read(model).map_err(SimulateError::ModelFile)?.model;
-    let ts = 1.0 / m.sample_rate_hz;
+    let file = crate::mimo::MimoModelFile::read(model).map_err(SimulateError::ModelFile)?;
+    let m = file.model;
+    let ts = if file.rate_given { Some(1.0 / m.sample_rate_hz) } else { None };
     let names: Vec<String> = if names == "u" {
         (1..=m.inputs).map(|i| format!("u{i}")).collect()
     } else {
@@ -294,13 +324,18 @@ fn run_mimo_model(model: &Path, input: &Path, names: &str, out: &Path) -> Result
     let drives =
         names.iter().map(|n| column_drive(input, n, ts, "the model", hint)).collect::<Result<Vec<_>, _>>()?;
     let len = drives[0].len();
+    let t = match column_drive(input, "t", ts, "the model", hint) {
+        Ok(t) => t,
+        Err(_) => (0..len).map(|k| k as f64 * ts.unwrap_or(1.0)).collect(),
+    };
     let u: Vec<f64> = drives.iter().flatten().copied().collect();
-    let y = m.simulate(&u, crate::mimo::model::Warmup::Rest).map_err(|e| SimulateError::File {
+    let periodic = file.period_samples.is_some_and(|n| whole_periods(&drives, n));
+    let warmup = if periodic { Warmup::Periods(1) } else { Warmup::Rest };
+    let y = m.simulate(&u, warmup).map_err(|e| SimulateError::File {
         file: model.display().to_string(),
         line: None,
         what: e.to_string(),
     })?;
-    let t: Vec<f64> = (0..len).map(|k| k as f64 * ts).collect();
     let y_names: Vec<String> = (1..=m.outputs).map(|o| format!("y{o} [um]")).collect();
     let mut cols: Vec<(&str, &[f64])> = vec![("t", &t)];
     cols.extend(names.iter().zip(&drives).map(|(n, d)| (n.as_str(), d.as_slice())));
@@ -310,15 +345,16 @@ fn run_mimo_model(model: &Path, input: &Path, names: &str, out: &Path) -> Result
     Ok(Summary {
         out: out.display().to_string(),
         drive: format!(
-            "{}:{} through a {}×{} model of order {}",
+            "{}:{} through a {}×{} model of order {} ({})",
             input.display(),
             names.join(","),
             m.outputs,
             m.inputs,
-            m.order()
+            m.order(),
+            if periodic { "a periodic drive: its steady state" } else { "from rest" }
         ),
         samples: len,
-        ts_s: ts,
+        ts_s: ts.unwrap_or(f64::NAN),
         y_min_um: lo,
         y_max_um: hi,
         harmonics: vec![],
@@ -326,11 +362,12 @@ fn run_mimo_model(model: &Path, input: &Path, names: &str, out: &Path) -> Result
 }
 
 /// The drive column `name` of a CSV file for `who` (what runs it); `ts` is its sample
-/// interval, which a `t` column must match (within 1 %), else the error says `hint`.
+/// interval, which a `t` column must match (within 1 %), else the error says `hint` (`None`:
+/// any interval).
 pub fn column_drive(
     path: &Path,
     name: &str,
-    ts: f64,
+    ts: Option<f64>,
     who: &str,
     hint: &str,
 ) -> Result<Vec<f64>, SimulateError> {
@@ -389,7 +426,7 @@ pub fn column_drive(
     if u.len() < 2 {
         return Err(bad(None, format!("{} samples, at least 2 needed", u.len())));
     }
-    if t.len() >= 2 {
+    if let (true, Some(ts)) = (t.len() >= 2, ts) {
         let file_ts = (t[t.len() - 1] - t[0]) / (t.len() - 1) as f64;
         if ((file_ts - ts) / ts).abs() > 0.01 {
             return Err(bad(None, format!("sampled every {file_ts} s, {who} every {ts} s ({hint})")));
@@ -413,24 +450,26 @@ mod tests {
         let p = tmp("drive.csv");
         std::fs::write(&p, "# a comment\nt,v\n0,0.5\n0.001,-0.25\n0.002,1\n").unwrap();
         assert_eq!(
-            column_drive(&p, "v", 1e-3, "the virtual bimorph", SCENARIO_HINT).unwrap(),
+            column_drive(&p, "v", Some(1e-3), "the virtual bimorph", SCENARIO_HINT).unwrap(),
             vec![0.5, -0.25, 1.0]
         );
-        let e = column_drive(&p, "v", 2e-3, "the virtual bimorph", SCENARIO_HINT).unwrap_err().to_string();
+        let e =
+            column_drive(&p, "v", Some(2e-3), "the virtual bimorph", SCENARIO_HINT).unwrap_err().to_string();
         assert!(e.contains("sampled every 0.001 s"), "{e}");
         std::fs::write(&p, "t,v\n0,0\n0.001,2000\n").unwrap();
-        let e = column_drive(&p, "v", 1e-3, "the virtual bimorph", SCENARIO_HINT).unwrap_err().to_string();
+        let e =
+            column_drive(&p, "v", Some(1e-3), "the virtual bimorph", SCENARIO_HINT).unwrap_err().to_string();
         assert_eq!(e, format!("{}:3: column \"v\": 2000 V is beyond ±1000 V", p.display()));
         std::fs::write(&p, "t,v\n0,0\n0,1\n").unwrap();
         assert!(
-            column_drive(&p, "v", 1e-3, "the virtual bimorph", SCENARIO_HINT)
+            column_drive(&p, "v", Some(1e-3), "the virtual bimorph", SCENARIO_HINT)
                 .unwrap_err()
                 .to_string()
                 .ends_with(":3: time 0 does not increase")
         );
         std::fs::write(&p, "1,2\n").unwrap();
         assert!(
-            column_drive(&p, "v", 1e-3, "the virtual bimorph", SCENARIO_HINT)
+            column_drive(&p, "v", Some(1e-3), "the virtual bimorph", SCENARIO_HINT)
                 .unwrap_err()
                 .to_string()
                 .contains(":1: no header row")

@@ -10,7 +10,9 @@
 //!   "model": { "sample_rate_hz": 6400.0, "inputs": 3, "outputs": 3, "modes": [ … ], … }
 //! }
 //! ```
-//! `held_out_um` is the benchmark's metric per level on the realisations kept apart during
+//! `period_samples` is the period of the drives it was fitted on (`simulate --model` takes a
+//! drive of whole such periods as periodic). `"sample_rate_given": false` marks a model fitted on NumPy files without a sample rate:
+//! it runs per sample, on any drive's rows. `held_out_um` is the benchmark's metric per level on the realisations kept apart during
 //! the fit. A file that is not this, a value that is not finite, a model whose sizes do not
 //! agree or that is not stable is refused with one line naming the file and the field.
 
@@ -32,6 +34,11 @@ pub struct MimoModelFile {
     pub fitted_on: Option<String>,
     /// The benchmark's metric per level on the realisations kept apart (µm).
     pub held_out_um: Vec<f64>,
+    /// Whether the record gave its sample rate; without it the model runs per sample (its
+    /// `sample_rate_hz` is 1) and takes any drive's rows as its samples.
+    pub rate_given: bool,
+    /// Samples per period of the periodic drives it was fitted on.
+    pub period_samples: Option<usize>,
 }
 
 #[derive(Serialize, Deserialize)]
@@ -53,7 +60,19 @@ struct Header {
     fitted_on: Option<String>,
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     held_out_um: Vec<f64>,
+    #[serde(default = "yes", skip_serializing_if = "is_true")]
+    sample_rate_given: bool,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    period_samples: Option<usize>,
     model: MimoModel,
+}
+
+fn yes() -> bool {
+    true
+}
+
+fn is_true(b: &bool) -> bool {
+    *b
 }
 
 /// Whether a model file's text names the family `"mimo"` (read it with
@@ -76,6 +95,8 @@ impl MimoModelFile {
             units: Units { u: "V".into(), y: "um".into() },
             fitted_on: self.fitted_on.clone(),
             held_out_um: self.held_out_um.iter().copied().filter(|v| v.is_finite()).collect(),
+            sample_rate_given: self.rate_given,
+            period_samples: self.period_samples,
             model: self.model.clone(),
         };
         serde_json::to_string_pretty(&header).unwrap_or_default() + "\n"
@@ -125,7 +146,16 @@ impl MimoModelFile {
             return Err(format!("\"ts_s\" {} and \"model.sample_rate_hz\" {fs} disagree", h.ts_s));
         }
         h.model.validate().map_err(|e| format!("\"model\": {e}"))?;
-        Ok(Self { model: h.model, fitted_on: h.fitted_on, held_out_um: h.held_out_um })
+        if h.period_samples.is_some_and(|n| n < 2) {
+            return Err("\"period_samples\": at least 2".into());
+        }
+        Ok(Self {
+            model: h.model,
+            fitted_on: h.fitted_on,
+            held_out_um: h.held_out_um,
+            rate_given: h.sample_rate_given,
+            period_samples: h.period_samples,
+        })
     }
 }
 
@@ -147,7 +177,13 @@ mod tests {
 
     #[test]
     fn round_trip_and_refusals() {
-        let f = MimoModelFile { model: model(), fitted_on: Some("fsm".into()), held_out_um: vec![0.1, 0.2] };
+        let f = MimoModelFile {
+            model: model(),
+            fitted_on: Some("fsm".into()),
+            held_out_um: vec![0.1, 0.2],
+            rate_given: false,
+            period_samples: Some(8192),
+        };
         let text = f.to_json();
         assert!(is_mimo(&text));
         assert_eq!(MimoModelFile::parse(&text).unwrap(), f);

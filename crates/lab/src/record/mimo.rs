@@ -38,6 +38,11 @@ pub struct MimoOptions {
     pub u_unit: VoltUnit,
     /// Unit of the output files.
     pub y_unit: LengthUnit,
+    /// `y_unit` was not given: when the outputs as read in it span less than
+    /// [`super::MIN_SPAN_UM`] or more than [`super::MAX_SPAN_UM`] (the importer's plausible
+    /// displacements), they are read in the unit that brings them in, and
+    /// [`MimoRecord::notes`] says so (NumPy files carry no unit).
+    pub infer_y_unit: bool,
     /// Samples per period of a CSV table (`None`: the whole table is one period).
     pub period_samples: Option<usize>,
     /// Only levels whose tag contains this text (e.g. `"train"`).
@@ -134,6 +139,7 @@ impl Default for MimoOptions {
             sample_rate_hz: None,
             u_unit: VoltUnit::V,
             y_unit: LengthUnit::Um,
+            infer_y_unit: false,
             period_samples: None,
             only: None,
             columns: None,
@@ -208,6 +214,11 @@ impl Signals {
         &self.data
     }
 
+    /// Every sample times `k`.
+    pub fn scale(&mut self, k: f64) {
+        self.data.iter_mut().for_each(|v| *v *= k);
+    }
+
     /// From an array of shape `(N, C, R, P)`, `(N, C, R)` or `(N, C)` in C order, scaled.
     fn from_array(a: &NpyArray, scale: f64) -> Option<Self> {
         let s = &a.shape;
@@ -254,10 +265,15 @@ pub struct Level {
 pub struct MimoRecord {
     /// Where it came from.
     pub source: String,
-    /// Sample rate, Hz.
+    /// Sample rate, Hz (1 when [`Self::rate_given`] is false: frequencies are then in cycles
+    /// per sample).
     pub sample_rate_hz: f64,
+    /// Whether the sample rate was given (an option or a time column); NumPy files carry none.
+    pub rate_given: bool,
     /// The levels, by rising amplitude.
     pub levels: Vec<Level>,
+    /// What the reader decided that the files do not say (a unit, no sample rate).
+    pub notes: Vec<String>,
 }
 
 /// A MIMO record that cannot be read or built.
@@ -396,9 +412,7 @@ impl MimoRecord {
     /// The `u_TAG`/`y_TAG` pairs among `paths` (`.npy` files named so, members of `.npz`
     /// archives named so; a lone `.npy` file `u_TAG.npy` brings its `y_TAG.npy` beside it).
     fn read_npy_files(source: String, paths: &[PathBuf], opts: &MimoOptions) -> Result<Self, MimoError> {
-        let fs = opts
-            .sample_rate_hz
-            .ok_or_else(|| invalid(&source, "NumPy files carry no sample rate: give --sample-rate HZ"))?;
+        let fs = opts.sample_rate_hz.unwrap_or(1.0);
         let mut paths = paths.to_vec();
         if let [one] = paths.as_slice() {
             let stem = one.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
@@ -476,9 +490,51 @@ impl MimoRecord {
         levels.sort_by(|a, b| {
             a.amplitude_v.unwrap_or(f64::INFINITY).total_cmp(&b.amplitude_v.unwrap_or(f64::INFINITY))
         });
-        let rec = Self { source, sample_rate_hz: fs, levels };
+        let mut rec = Self {
+            source,
+            sample_rate_hz: fs,
+            rate_given: opts.sample_rate_hz.is_some(),
+            levels,
+            notes: vec![],
+        };
+        if !rec.rate_given {
+            rec.notes.push(
+                "no sample rate (NumPy files carry none; give --sample-rate HZ): the model runs per sample, frequencies in cycles per sample".into(),
+            );
+        }
         rec.validate()?;
+        rec.infer_y_unit(opts);
         Ok(rec)
+    }
+
+    /// [`MimoOptions::infer_y_unit`].
+    fn infer_y_unit(&mut self, opts: &MimoOptions) {
+        if !opts.infer_y_unit {
+            return;
+        }
+        let (lo, hi) = self
+            .levels
+            .iter()
+            .flat_map(|l| l.y.as_slice())
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &v| (lo.min(v), hi.max(v)));
+        let span = hi - lo;
+        if !(span > 0.0) || (super::MIN_SPAN_UM..=super::MAX_SPAN_UM).contains(&span) {
+            return;
+        }
+        if let Some(unit) = super::import::likely_unit(span, opts.y_unit) {
+            let k = unit.micrometres() / opts.y_unit.micrometres();
+            for l in &mut self.levels {
+                l.y.scale(k);
+            }
+            self.notes.push(format!(
+                "outputs read in {} (in {} they would span {} µm, outside {}…{} µm); give --y-unit to say otherwise",
+                unit.name(),
+                opts.y_unit.name(),
+                super::for_people(span),
+                super::for_people(super::MIN_SPAN_UM),
+                super::for_people(super::MAX_SPAN_UM)
+            ));
+        }
     }
 
     /// Reads a CSV table `t,u1,..,um,y1,..,yp` as one level of one realisation.
@@ -631,12 +687,15 @@ impl MimoRecord {
         let mu = u_cols.len();
         let u = build(0..mu).ok_or_else(|| invalid(source, "no samples"))?;
         let y = build(mu..cols.len()).ok_or_else(|| invalid(source, "no samples"))?;
-        let rec = Self {
+        let mut rec = Self {
             source: source.to_string(),
             sample_rate_hz: fs,
+            rate_given: true,
             levels: vec![Level { tag: "csv".into(), amplitude_v: None, u, y }],
+            notes: vec![],
         };
         rec.validate()?;
+        rec.infer_y_unit(opts);
         Ok(rec)
     }
 }

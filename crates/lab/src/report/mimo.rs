@@ -18,10 +18,14 @@ pub fn record_line(rec: &MimoRecord) -> String {
         .iter()
         .map(|l| format!("{} ({} realisations × {} periods)", tag(&l.tag), l.u.realisations, l.u.periods))
         .collect();
+    let rate = if rec.rate_given {
+        format!("at {} Hz", crate::record::for_people(rec.sample_rate_hz))
+    } else {
+        "(no sample rate: frequencies in cycles per sample)".to_string()
+    };
     format!(
-        "{}: {m} inputs, {p} outputs, periods of {n} samples at {} Hz; levels {}",
+        "{}: {m} inputs, {p} outputs, periods of {n} samples {rate}; levels {}",
         rec.source,
-        crate::record::for_people(rec.sample_rate_hz),
         levels.join(", ")
     )
 }
@@ -268,7 +272,14 @@ pub fn identify_text(rec: &MimoRecord, fit: &MimoFit, kept_apart: Option<usize>)
     let all = modes(&fit.model);
     let nyquist = fit.model.sample_rate_hz / 2.0;
     let light = |&&(f, z): &&(f64, f64)| f > 0.0 && f < nyquist && z < 0.5;
-    let md: Vec<String> = all.iter().filter(light).map(|(f, z)| format!("{f:.1} Hz (ζ {z:.4})")).collect();
+    let md: Vec<String> = all
+        .iter()
+        .filter(light)
+        .map(|(f, z)| match rec.rate_given {
+            true => format!("{f:.1} Hz (ζ {z:.4})"),
+            false => format!("{f:.4} cycles/sample (ζ {z:.4})"),
+        })
+        .collect();
     let _ = writeln!(
         s,
         "lightly damped modes: {}; and {} real or heavily damped (ζ ≥ 0.5) terms",
