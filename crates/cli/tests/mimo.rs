@@ -269,6 +269,51 @@ fn identify_keeps_a_realisation_apart_and_the_model_file_runs_elsewhere() {
     let written = std::fs::read_to_string(&out_csv).unwrap();
     assert!(written.lines().next().unwrap().contains("y2 [um]"), "{written:.200}");
     assert_eq!(written.lines().count(), 201);
+    // A drive of whole periods of the training period (512 samples): two realisations written
+    // one after the other, two periods each. Each run is simulated in its own steady state, so
+    // the second run's rows are those of the second realisation simulated alone.
+    let wave = |f: usize, ph: f64, k: usize| (TAU * (f * (k % N)) as f64 / N as f64 + ph).sin();
+    let csv = |runs: &[(usize, usize)]| -> String {
+        let mut rows = String::from("t,u1,u2\n");
+        let mut k0 = 0;
+        for &(f, periods) in runs {
+            for k in 0..periods * N {
+                rows += &format!(
+                    "{},{},{}\n",
+                    (k0 + k) as f64 * 1e-3,
+                    0.2 * wave(f, 0.0, k),
+                    0.1 * wave(2 * f, 1.0, k)
+                );
+            }
+            k0 += periods * N;
+        }
+        rows
+    };
+    let sim = |name: &str, text: String| -> Vec<String> {
+        let (drive, out_csv) = (other.join(format!("{name}.csv")), other.join(format!("{name}-out.csv")));
+        std::fs::write(&drive, text).unwrap();
+        let out = boucwen(&[
+            "simulate",
+            "--model",
+            model.to_str().unwrap(),
+            "--input",
+            drive.to_str().unwrap(),
+            "--out",
+            out_csv.to_str().unwrap(),
+        ]);
+        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+        assert!(String::from_utf8_lossy(&out.stdout).contains("each in its steady state"));
+        // The outputs only (the t column differs).
+        std::fs::read_to_string(&out_csv)
+            .unwrap()
+            .lines()
+            .skip(1)
+            .map(|l| l.split(',').skip(3).collect::<Vec<_>>().join(","))
+            .collect()
+    };
+    let both = sim("two-runs", csv(&[(3, 2), (5, 2)]));
+    let alone = sim("one-run", csv(&[(5, 2)]));
+    assert_eq!(&both[2 * N..], &alone[..], "the second run is in its own steady state");
     // The one-input reader says what the file is.
     let out = boucwen(&["compare", model.to_str().unwrap(), drive.to_str().unwrap()]);
     assert!(!out.status.success());

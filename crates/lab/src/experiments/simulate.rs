@@ -163,7 +163,7 @@ pub struct Summary {
     pub drive: String,
     /// Samples in the record.
     pub samples: usize,
-    /// Sample interval, s.
+    /// Sample interval, s (NaN, `null` in JSON, for a model fitted without a sample rate).
     pub ts_s: f64,
     /// Lowest output, µm.
     pub y_min_um: f64,
@@ -276,29 +276,40 @@ pub fn run_model(model: &Path, input: &Path, name: &str, out: &Path) -> Result<S
 /// the drive's RMS (the Fine Steering Mirror's measured inputs: 0.04 %).
 pub const PERIOD_TOLERANCE: f64 = 0.01;
 
-/// Whether every drive is a whole number of periods of `n` samples, its periods agreeing within
-/// [`PERIOD_TOLERANCE`] (one period counts).
-fn whole_periods(drives: &[Vec<f64>], n: usize) -> bool {
-    drives.iter().all(|d| {
-        if n == 0 || d.is_empty() || d.len() % n != 0 {
-            return false;
-        }
-        let ms = |v: &mut dyn Iterator<Item = f64>| v.map(|x| x * x).sum::<f64>();
-        let total = ms(&mut d.iter().copied()) / d.len() as f64;
-        d.chunks(n).skip(1).all(|p| {
-            let diff = ms(&mut p.iter().zip(&d[..n]).map(|(a, b)| a - b)) / n as f64;
+/// The drives cut into runs of agreeing periods of `n` samples: each run's periods agree with
+/// its first within [`PERIOD_TOLERANCE`] on every channel (several realisations one after
+/// the other are several runs). `None` when the length is not a whole number of periods.
+fn periodic_runs(drives: &[Vec<f64>], n: usize) -> Option<Vec<std::ops::Range<usize>>> {
+    let len = drives.first()?.len();
+    if n == 0 || len == 0 || len % n != 0 {
+        return None;
+    }
+    let ms = |v: &mut dyn Iterator<Item = f64>| v.map(|x| x * x).sum::<f64>();
+    let agree = |a: usize, b: usize| {
+        drives.iter().all(|d| {
+            let total = ms(&mut d[a..a + n].iter().copied());
+            let diff = ms(&mut d[a..a + n].iter().zip(&d[b..b + n]).map(|(x, y)| x - y));
             diff <= PERIOD_TOLERANCE * PERIOD_TOLERANCE * total
         })
-    })
+    };
+    let mut runs: Vec<std::ops::Range<usize>> = Vec::new();
+    for start in (0..len).step_by(n) {
+        match runs.last_mut() {
+            Some(r) if agree(r.start, start) => r.end = start + n,
+            _ => runs.push(start..start + n),
+        }
+    }
+    Some(runs)
 }
 
 /// [`run_model`] for a model of several inputs and outputs.
 ///
 /// A model fitted without a sample rate takes the drive's rows as its samples, whatever its
 /// time column says; the output keeps the drive's `t` column when it has one. A drive of whole
-/// periods of the model's training period (agreeing within [`PERIOD_TOLERANCE`]; one period
-/// counts) is periodic: it runs once before the written pass, so the output is the periodic
-/// steady state; any other drive runs from rest.
+/// periods of the model's training period is periodic: cut into runs of agreeing periods
+/// (within [`PERIOD_TOLERANCE`]; one period counts; realisations written one after the other
+/// are separate runs), each run is simulated once before its written pass, so the output is
+/// each run's periodic steady state. Any other drive runs from rest.
 fn run_mimo_model(model: &Path, input: &Path, names: &str, out: &Path) -> Result<Summary, SimulateError> {
     let file = crate::mimo::MimoModelFile::read(model).map_err(SimulateError::ModelFile)?;
     let m = file.model;
@@ -328,14 +339,24 @@ fn run_mimo_model(model: &Path, input: &Path, names: &str, out: &Path) -> Result
         Ok(t) => t,
         Err(_) => (0..len).map(|k| k as f64 * ts.unwrap_or(1.0)).collect(),
     };
-    let u: Vec<f64> = drives.iter().flatten().copied().collect();
-    let periodic = file.period_samples.is_some_and(|n| whole_periods(&drives, n));
-    let warmup = if periodic { Warmup::Periods(1) } else { Warmup::Rest };
-    let y = m.simulate(&u, warmup).map_err(|e| SimulateError::File {
-        file: model.display().to_string(),
-        line: None,
-        what: e.to_string(),
-    })?;
+    let runs = file.period_samples.and_then(|n| periodic_runs(&drives, n));
+    let periodic = runs.is_some();
+    let (runs, warmup) = match runs {
+        Some(r) => (r, Warmup::Periods(1)),
+        None => (vec![0..len], Warmup::Rest),
+    };
+    let mut y = vec![0.0; m.outputs * len];
+    for r in &runs {
+        let u: Vec<f64> = drives.iter().flat_map(|d| d[r.clone()].iter().copied()).collect();
+        let yr = m.simulate(&u, warmup).map_err(|e| SimulateError::File {
+            file: model.display().to_string(),
+            line: None,
+            what: e.to_string(),
+        })?;
+        for o in 0..m.outputs {
+            y[o * len + r.start..o * len + r.end].copy_from_slice(&yr[o * r.len()..(o + 1) * r.len()]);
+        }
+    }
     let y_names: Vec<String> = (1..=m.outputs).map(|o| format!("y{o} [um]")).collect();
     let mut cols: Vec<(&str, &[f64])> = vec![("t", &t)];
     cols.extend(names.iter().zip(&drives).map(|(n, d)| (n.as_str(), d.as_slice())));
@@ -351,7 +372,11 @@ fn run_mimo_model(model: &Path, input: &Path, names: &str, out: &Path) -> Result
             m.outputs,
             m.inputs,
             m.order(),
-            if periodic { "a periodic drive: its steady state" } else { "from rest" }
+            if periodic {
+                format!("{} run(s) of whole periods, each in its steady state", runs.len())
+            } else {
+                "from rest".to_string()
+            }
         ),
         samples: len,
         ts_s: ts.unwrap_or(f64::NAN),

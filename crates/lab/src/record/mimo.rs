@@ -527,10 +527,10 @@ impl MimoRecord {
                 l.y.scale(k);
             }
             self.notes.push(format!(
-                "outputs read in {} (in {} they would span {} µm, outside {}…{} µm); give --y-unit to say otherwise",
+                "outputs read in {} (in {} they would span {:.3e} µm, outside {}…{} µm); give --y-unit to say otherwise",
                 unit.name(),
                 opts.y_unit.name(),
-                super::for_people(span),
+                span,
                 super::for_people(super::MIN_SPAN_UM),
                 super::for_people(super::MAX_SPAN_UM)
             ));
