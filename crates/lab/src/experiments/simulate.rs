@@ -343,7 +343,7 @@ fn run_mimo_model(model: &Path, input: &Path, names: &str, out: &Path) -> Result
     let periodic = runs.is_some();
     let (runs, warmup) = match runs {
         Some(r) => (r, Warmup::Periods(1)),
-        None => (vec![0..len], Warmup::Rest),
+        None => (std::iter::once(0..len).collect(), Warmup::Rest),
     };
     let mut y = vec![0.0; m.outputs * len];
     for r in &runs {

@@ -518,7 +518,7 @@ impl MimoRecord {
             .flat_map(|l| l.y.as_slice())
             .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &v| (lo.min(v), hi.max(v)));
         let span = hi - lo;
-        if !(span > 0.0) || (super::MIN_SPAN_UM..=super::MAX_SPAN_UM).contains(&span) {
+        if span.is_nan() || span <= 0.0 || (super::MIN_SPAN_UM..=super::MAX_SPAN_UM).contains(&span) {
             return;
         }
         if let Some(unit) = super::import::likely_unit(span, opts.y_unit) {
