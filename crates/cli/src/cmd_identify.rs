@@ -69,7 +69,7 @@ pub struct IdentifyArgs {
     #[arg(long)]
     invertible: bool,
     /// Records of several inputs and outputs: candidate orders of the state-space model
-    /// (comma-separated; default 28), chosen on the realisation kept apart.
+    /// (comma-separated; default 36), chosen on the realisation kept apart.
     #[arg(long = "order", value_delimiter = ',', value_name = "N")]
     orders: Vec<usize>,
     /// Records of several inputs and outputs: fit every realisation (by default the last

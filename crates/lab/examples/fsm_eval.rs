@@ -7,7 +7,7 @@
 //! hysteretic model, and prints the benchmark's metric on realisation `h` per level. Then the
 //! whole fit ([`fit_mimo`], order choice included) on every training realisation, timed.
 //! `--no-per-level` skips the per-level linear models, `--no-full` the whole fit;
-//! `MIMO_ORDER=n` sets the folds' order (28).
+//! `MIMO_ORDER=n` sets the folds' order (the default of `FitOptions`, 36).
 
 use boucwen_lab::mimo::fit::{FitOptions, benchmark_error, fit_mimo, fit_structure};
 use boucwen_lab::record::mimo::{MimoOptions, MimoRecord};
@@ -26,7 +26,10 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let rec = MimoRecord::read_npy_folder(&dir, &MimoOptions::fine_steering_mirror())?;
     let nl = rec.levels.len();
     let opts = FitOptions::default();
-    let order = std::env::var("MIMO_ORDER").ok().and_then(|s| s.parse().ok()).unwrap_or(28);
+    let order = std::env::var("MIMO_ORDER")
+        .ok()
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(FitOptions::default().orders[0]);
     let quiet = |_: &boucwen_lab::mimo::Progress| {};
     let folds: Vec<usize> = if quick { vec![5] } else { (0..6).collect() };
     let mut sums = vec![[0.0; 3]; nl];
