@@ -13,7 +13,8 @@
 //!   before the timing.
 //!
 //! - `mimo/simulate/...`: one simulation of a MIMO model of the Fine Steering Mirror's size
-//!   (`mimo_simulate`).
+//!   (`mimo_simulate`): a seeded model with a hysteresis branch, its linear part, and the model
+//!   `identify` fits on the mirror's training data (fitted before the timing).
 //!
 //! Before the timing, one run of each prints what it fitted or found.
 
@@ -143,6 +144,32 @@ fn mimo_simulate(c: &mut Criterion) {
     g.bench_function("order28-linear-8192x2", |b| {
         b.iter(|| black_box(linear.simulate(black_box(&u), Warmup::Periods(1)).expect("simulation")))
     });
+    // The model `boucwen identify` fits on the Fine Steering Mirror (the default options), on
+    // one measured period of realisation 6 at 300 mV: the cost of one prediction as the
+    // benchmark's metric runs it.
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data/fine-steering-mirror");
+    use boucwen_lab::record::mimo::{MimoOptions, MimoRecord};
+    match MimoRecord::read_npy_folder(&dir, &MimoOptions::fine_steering_mirror()) {
+        Ok(rec) => {
+            // The default keeps realisation 6 apart.
+            let opts = boucwen_lab::mimo::FitOptions::default();
+            let t0 = std::time::Instant::now();
+            let fit = boucwen_lab::mimo::fit_mimo(&rec, &opts, &|_| {}).expect("fit");
+            println!(
+                "mimo/simulate/fsm-fitted: order {} fitted in {:.1} s, held out {:?} µm",
+                fit.order,
+                t0.elapsed().as_secs_f64(),
+                fit.held_out.as_ref().map(|h| &h.hysteretic)
+            );
+            let l = &rec.levels[rec.levels.len() - 1];
+            let u: Vec<f64> = (0..l.u.channels).flat_map(|c| l.u.get(5, 0, c).iter().copied()).collect();
+            let fitted = fit.model;
+            g.bench_function("fsm-fitted-8192x2", |b| {
+                b.iter(|| black_box(fitted.simulate(black_box(&u), Warmup::Periods(1)).expect("simulation")))
+            });
+        }
+        Err(e) => println!("mimo/simulate/fsm-fitted: skipped, {e}"),
+    }
     g.finish();
 }
 
