@@ -28,9 +28,11 @@ impl Design {
         self.file.to_json()
     }
 
-    /// The design file as Python objects.
+    /// The design file as Python objects: its text read back, so the board's `f32` values
+    /// are the numbers the file shows (as `json.loads` of the file gives them).
     fn as_dict(&self, py: Python<'_>) -> PyResult<Py<PyAny>> {
-        let v = serde_json::to_value(&self.file).map_err(|e| Error::new_err(format!("design as JSON: {e}")))?;
+        let v: serde_json::Value = serde_json::from_str(&self.file.to_json())
+            .map_err(|e| Error::new_err(format!("design as JSON: {e}")))?;
         to_py(py, &v)
     }
 
