@@ -16,7 +16,11 @@ pub const ARRAYS: &str = "<arrays>";
 
 /// Runs `f` without the GIL, with a panic caught and turned into [`Error`]: no Rust panic
 /// crosses into Python. `f`'s own error is the library's message.
-pub fn guarded<T: Send>(py: Python<'_>, what: &str, f: impl FnOnce() -> Result<T, String> + Send) -> PyResult<T> {
+pub fn guarded<T: Send>(
+    py: Python<'_>,
+    what: &str,
+    f: impl FnOnce() -> Result<T, String> + Send,
+) -> PyResult<T> {
     let out = py.detach(|| catch_unwind(AssertUnwindSafe(f)));
     match out {
         Ok(Ok(v)) => Ok(v),
@@ -124,7 +128,9 @@ impl Input {
             return Ok(Input { record, imported: Some(imported) });
         }
         let (Some(y), Some(ts)) = (y, ts) else {
-            return Err(Error::new_err("give u, y and ts (the sample interval, s), or a Record from read_record"));
+            return Err(Error::new_err(
+                "give u, y and ts (the sample interval, s), or a Record from read_record",
+            ));
         };
         let (u, y) = (floats(u, "u")?, floats(y, "y")?);
         let record = record::Record::new(source.unwrap_or(ARRAYS), t0, ts, u, y, None)

@@ -98,11 +98,14 @@ pub fn design(
         Some(h) => match h.extract::<String>() {
             Ok(s) if s == "auto" => HarmonicChoice::Auto,
             Ok(s) if s == "none" => HarmonicChoice::None,
-            Ok(s) => return Err(Error::new_err(format!("harmonics {s:?}: \"auto\", \"none\" or a list of orders"))),
-            Err(_) => HarmonicChoice::Orders(
-                h.extract::<Vec<u32>>()
-                    .map_err(|_| Error::new_err("harmonics: \"auto\", \"none\" or a list of orders like [3, 5]"))?,
-            ),
+            Ok(s) => {
+                return Err(Error::new_err(format!(
+                    "harmonics {s:?}: \"auto\", \"none\" or a list of orders"
+                )));
+            }
+            Err(_) => HarmonicChoice::Orders(h.extract::<Vec<u32>>().map_err(|_| {
+                Error::new_err("harmonics: \"auto\", \"none\" or a list of orders like [3, 5]")
+            })?),
         },
     };
     let (lo, hi) = drive_limits;
@@ -116,7 +119,12 @@ pub fn design(
         freq_hz: freq,
         amplitude_um: amplitude,
         harmonics,
-        safety: SafetyParams { u_min: lo as f32, u_max: hi as f32, slew_v_per_s: slew as f32, host_timeout_ms },
+        safety: SafetyParams {
+            u_min: lo as f32,
+            u_max: hi as f32,
+            slew_v_per_s: slew as f32,
+            host_timeout_ms,
+        },
         fade_s: fade,
         predict_seconds,
     };

@@ -102,7 +102,11 @@ impl Diagnosis {
             .flatten()
             .filter_map(|f| f.get("kind").and_then(Value::as_str).map(str::to_string))
             .collect();
-        format!("Diagnosis({}: {})", self.analysis, if kinds.is_empty() { "no findings".into() } else { kinds.join(", ") })
+        format!(
+            "Diagnosis({}: {})",
+            self.analysis,
+            if kinds.is_empty() { "no findings".into() } else { kinds.join(", ") }
+        )
     }
 }
 
@@ -151,7 +155,12 @@ fn rules_of(py: Python<'_>, rules: Option<&Bound<'_, PyAny>>) -> PyResult<Rules>
 }
 
 /// One record, as the command's `one`: the JSON lines and the text, or the one-line error.
-fn one(r: &Record, imported: Option<&Imported>, given: Option<(usize, usize)>, rules: &Rules) -> Result<Diagnosis, String> {
+fn one(
+    r: &Record,
+    imported: Option<&Imported>,
+    given: Option<(usize, usize)>,
+    rules: &Rules,
+) -> Result<Diagnosis, String> {
     let name = r.source.clone();
     r.validate_for_fit(rules.sine.min_samples).map_err(|e| e.to_string())?;
     let read_as = imported.map_or(String::new(), |i| format!("read as {}\n", i.info.describe()));
@@ -216,7 +225,11 @@ fn stepped(
             }
             Err(e) => {
                 lines.push(json!({"file": name, "step": step_json, "error": format!("{label}: {e}")}));
-                out.push_str(&format!("\n== step {} of {}: {from} to {to} s ==\n{label}: {e}\n", i + 1, steps.len()));
+                out.push_str(&format!(
+                    "\n== step {} of {}: {from} to {to} s ==\n{label}: {e}\n",
+                    i + 1,
+                    steps.len()
+                ));
             }
         }
     }

@@ -85,7 +85,12 @@ impl Model {
     /// with `periodic=True`, `u` is one period of a periodic drive and the output is the
     /// steady state (the period run once before), as `compare --periodic`.
     #[pyo3(signature = (u, periodic=false))]
-    fn simulate<'py>(&self, py: Python<'py>, u: &Bound<'py, PyAny>, periodic: bool) -> PyResult<Bound<'py, PyArray1<f64>>> {
+    fn simulate<'py>(
+        &self,
+        py: Python<'py>,
+        u: &Bound<'py, PyAny>,
+        periodic: bool,
+    ) -> PyResult<Bound<'py, PyArray1<f64>>> {
         let u = floats(u, "u")?;
         let m = &self.file;
         let y = guarded(py, "simulate", || {
@@ -205,7 +210,9 @@ pub fn identify(
     };
     let harmonics = harmonics.unwrap_or_default();
     if families.is_some() && (method == Method::Rls || !harmonics.is_empty()) {
-        return Err(Error::new_err("method \"rls\" and harmonics go with model \"extended\" or \"enhanced\""));
+        return Err(Error::new_err(
+            "method \"rls\" and harmonics go with model \"extended\" or \"enhanced\"",
+        ));
     }
     let opts = Options {
         structure: if model == "enhanced" { Structure::Enhanced } else { Structure::Extended },
@@ -254,7 +261,10 @@ fn run(
             return Err(format!("{name}: the {} model could not be fitted", kept.family.name()));
         };
         if kept.held_rms_um.is_none() {
-            return Err(format!("{name}: the {} model's free run is not stable held out", kept.family.name()));
+            return Err(format!(
+                "{name}: the {} model's free run is not stable held out",
+                kept.family.name()
+            ));
         }
         return Ok((file(model.clone(), kept.held_rms_um), report::families_json(&c)));
     }

@@ -3,7 +3,9 @@
 
 use crate::Error;
 use crate::convert::{guarded, to_py};
-use boucwen_lab::record::{self, ColumnMap, ImportOptions, Imported, LengthUnit, TimeSource, TimeUnit, VoltUnit};
+use boucwen_lab::record::{
+    self, ColumnMap, ImportOptions, Imported, LengthUnit, TimeSource, TimeUnit, VoltUnit,
+};
 use numpy::{PyArray1, ToPyArray};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
@@ -132,8 +134,9 @@ fn options(
                 }
                 parts.join(",")
             } else {
-                c.extract::<String>()
-                    .map_err(|_| Error::new_err("columns: a spec like \"t=1,u=2,y=3\" or a dict {\"u\": \"Voltage\"}"))?
+                c.extract::<String>().map_err(|_| {
+                    Error::new_err("columns: a spec like \"t=1,u=2,y=3\" or a dict {\"u\": \"Voltage\"}")
+                })?
             };
             Some(spec.parse::<ColumnMap>().map_err(bad)?)
         }
@@ -146,7 +149,8 @@ fn options(
             )));
         }
     }
-    let mut opts = ImportOptions { columns, sample_rate_hz: sample_rate, keep_spikes, ..ImportOptions::default() };
+    let mut opts =
+        ImportOptions { columns, sample_rate_hz: sample_rate, keep_spikes, ..ImportOptions::default() };
     if let Some(units) = units {
         for (k, v) in units.iter() {
             let (k, v) = (k.str()?.to_string(), v.str()?.to_string());
