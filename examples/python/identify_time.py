@@ -28,5 +28,6 @@ for label, call in [
         times.append(time.perf_counter() - t)
     print(
         f"python identify(model={model!r}) from {label}: {len(rec)} samples, median {statistics.median(times):.4f} s "
-        f"of {runs} runs (min {min(times):.4f}, max {max(times):.4f}), held out {m.held_out_rms_um:.6f} µm"
+        f"of {runs} runs (min {min(times):.4f}, max {max(times):.4f}), held out {m.held_out_rms_um:.6f} µm; "
+        f"each: {' '.join(f'{t:.4f}' for t in times)}"
     )

@@ -55,13 +55,15 @@ fn main() -> Result<(), String> {
         times.push(t.elapsed().as_secs_f64());
         held = rms.unwrap_or(f64::NAN);
     }
+    let each: Vec<String> = times.iter().map(|t| format!("{t:.4}")).collect();
     times.sort_by(f64::total_cmp);
     println!(
-        "rust identify --model {model}: {} samples, median {:.4} s of {runs} runs (min {:.4}, max {:.4}), held out {held:.6} µm",
+        "rust identify --model {model}: {} samples, median {:.4} s of {runs} runs (min {:.4}, max {:.4}), held out {held:.6} µm; each: {}",
         r.len(),
         times[runs / 2],
         times[0],
-        times[runs - 1]
+        times[runs - 1],
+        each.join(" ")
     );
     Ok(())
 }
