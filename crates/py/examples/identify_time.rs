@@ -4,7 +4,7 @@
 //!
 //! ```sh
 //! cargo run --release -p boucwen-py --example identify_time -- RECORD.csv [MODEL] [RUNS]
-//! python examples/python/identify_time.py RECORD.csv [MODEL] [RUNS]    # the same from Python
+//! python examples/python/identify_time.py RECORD.csv   # both sides, in alternating rounds
 //! ```
 //! `MODEL`: extended (default), enhanced, oscillator, linear or auto.
 
