@@ -64,12 +64,13 @@ except ImportError:
     print("\nmatplotlib is not installed: no plot (pip install matplotlib)")
 else:
     time_s = np.arange(PERIOD) * rec.ts
-    fig, (a, b) = plt.subplots(2, 1, sharex=True, figsize=(8, 5))
-    a.plot(time_s, rec.y[held], label="measured", lw=0.8)
-    a.plot(time_s, c["simulated"], label=f"{model.name}, free run", lw=0.8)
+    first = time_s < 0.5  # the outputs over the period's first half second, the error over all of it
+    fig, (a, b) = plt.subplots(2, 1, figsize=(8, 5))
+    a.plot(time_s[first], rec.y[held][first], label="measured", lw=1.5)
+    a.plot(time_s[first], c["simulated"][first], "--", label=f"{model.name}, free run", lw=1)
     a.set_ylabel("y (µm)")
     a.legend()
-    b.plot(time_s, rec.y[held] - c["simulated"], lw=0.6, color="C3")
+    b.plot(time_s, rec.y[held] - c["simulated"], lw=0.4, color="C3")
     b.set_ylabel("error (µm)")
     b.set_xlabel("time in period 5 (s)")
     fig.suptitle(f"Bouc-Wen benchmark, held-out period: RMS {c['rms_um']:.2f} µm, FIT {c['fit_pct']:.1f} %")
