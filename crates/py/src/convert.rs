@@ -3,7 +3,7 @@
 
 use crate::Error;
 use crate::record::Record;
-use boucwen_lab::record::{self, Imported};
+use boucwen_lab::record::{self, ImportInfo};
 use numpy::PyReadonlyArray1;
 use numpy::ndarray::ArrayView1;
 use pyo3::prelude::*;
@@ -103,7 +103,7 @@ pub struct Input {
     /// The record, checked as the importer checks one.
     pub record: record::Record,
     /// How it was read, if it came from a file.
-    pub imported: Option<Imported>,
+    pub info: Option<ImportInfo>,
 }
 
 impl Input {
@@ -120,12 +120,12 @@ impl Input {
                     "a Record carries its own y and ts: give either a Record or u, y and ts",
                 ));
             }
-            let imported = r.borrow().imported.clone();
-            let mut record = imported.record.clone();
+            let r = r.borrow();
+            let mut record = r.to_lab(u.py())?;
             if let Some(s) = source {
                 record.source = s.to_string();
             }
-            return Ok(Input { record, imported: Some(imported) });
+            return Ok(Input { record, info: Some(r.info.clone()) });
         }
         let (Some(y), Some(ts)) = (y, ts) else {
             return Err(Error::new_err(
@@ -135,12 +135,18 @@ impl Input {
         let (u, y) = (floats(u, "u")?, floats(y, "y")?);
         let record = record::Record::new(source.unwrap_or(ARRAYS), t0, ts, u, y, None)
             .map_err(|e| Error::new_err(e.to_string()))?;
-        Ok(Input { record, imported: None })
+        Ok(Input { record, info: None })
     }
 
     /// The record's name in messages and JSON (`file`).
     pub fn name(&self) -> String {
         self.record.source.clone()
+    }
+
+    /// How the record was read, as the commands' JSON has it (`import`), if from a file.
+    pub fn import_json(&self) -> Option<serde_json::Value> {
+        let r = &self.record;
+        self.info.as_ref().map(|i| crate::record::import_json(i, r.len(), r.ts))
     }
 
     /// `window = (start_s, end_s)` in samples of the record, as `--window START:END` reads it

@@ -137,7 +137,7 @@ pub fn design(
     let mut given = vec![];
     for item in &items {
         given.push(match item.cast::<Record>() {
-            Ok(r) => Ok(r.borrow().imported.record.clone()),
+            Ok(r) => Ok(r.borrow().to_lab(py)?),
             Err(_) => Err(item
                 .extract::<PathBuf>()
                 .map_err(|_| Error::new_err("records: Records from read_record or paths"))?),

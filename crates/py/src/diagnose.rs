@@ -5,11 +5,10 @@
 
 use crate::Error;
 use crate::convert::{Input, guarded, to_py};
-use crate::record::import_json;
 use boucwen_lab::diagnose as lab;
 use boucwen_lab::diagnose::periodic::Realisation;
 use boucwen_lab::diagnose::steps::{self, SineStep};
-use boucwen_lab::record::{Imported, Record};
+use boucwen_lab::record::Record;
 use boucwen_lab::report::diagnosis as text;
 use boucwen_lab::rules::Rules;
 use pyo3::prelude::*;
@@ -133,8 +132,11 @@ pub fn diagnose(
     let rules = rules_of(py, rules)?;
     let input = Input::of(u, y, ts, t0, source.as_deref())?;
     let given = input.window(window)?;
-    let Input { record, imported } = input;
-    guarded(py, "diagnose", || one(&record, imported.as_ref(), given, &rules))
+    let import = input.import_json();
+    let read_as = input.info.as_ref().map_or(String::new(), |i| format!("read as {}\n", i.describe()));
+    let record = input.record;
+    let read = Read { import, read_as };
+    guarded(py, "diagnose", || one(&record, &read, given, &rules))
 }
 
 /// The rules: the defaults, a file's overrides (TOML, or JSON by its name), or a dict's.
@@ -154,37 +156,40 @@ fn rules_of(py: Python<'_>, rules: Option<&Bound<'_, PyAny>>) -> PyResult<Rules>
     Rules::parse(&name, &text).map_err(|e| Error::new_err(e.to_string()))
 }
 
+/// How a record from a file was read: the JSON's `import` and the report's first line.
+struct Read {
+    import: Option<Value>,
+    read_as: String,
+}
+
 /// One record, as the command's `one`: the JSON lines and the text, or the one-line error.
-fn one(
-    r: &Record,
-    imported: Option<&Imported>,
-    given: Option<(usize, usize)>,
-    rules: &Rules,
-) -> Result<Diagnosis, String> {
+fn one(r: &Record, read: &Read, given: Option<(usize, usize)>, rules: &Rules) -> Result<Diagnosis, String> {
     let name = r.source.clone();
     r.validate_for_fit(rules.sine.min_samples).map_err(|e| e.to_string())?;
-    let read_as = imported.map_or(String::new(), |i| format!("read as {}\n", i.info.describe()));
     if given.is_none() {
         if let Some(steps) = steps::diagnose_steps(&r.u, &r.y, r.ts, r.t0, rules) {
-            return stepped(r, imported, &read_as, &name, &steps, rules);
+            return stepped(r, read, &name, &steps, rules);
         }
     }
     let rec = Realisation { u: &r.u, y: &r.y, t0: r.t0, given };
     let d = lab::diagnose_drive(&[rec], r.ts, rules).map_err(|e| format!("{name}: {e}"))?;
     let mut j = text::json(&d, rules);
     j["file"] = json!(name);
-    if let Some(i) = imported {
-        j["import"] = import_json(i);
+    if let Some(i) = &read.import {
+        j["import"] = i.clone();
     }
     let analysis = j["analysis"].as_str().unwrap_or("sine").to_string();
-    Ok(Diagnosis { lines: vec![j], text: format!("{read_as}{}", text::text(&d, &name, rules)), analysis })
+    Ok(Diagnosis {
+        lines: vec![j],
+        text: format!("{}{}", read.read_as, text::text(&d, &name, rules)),
+        analysis,
+    })
 }
 
 /// A record that steps through several sines, as the command's `stepped`.
 fn stepped(
     r: &Record,
-    imported: Option<&Imported>,
-    read_as: &str,
+    read: &Read,
     name: &str,
     steps: &[SineStep],
     rules: &Rules,
@@ -198,7 +203,7 @@ fn stepped(
             steps[0].segment.freq_hz
         ));
     }
-    let mut out = format!("{read_as}{name}: {}\n", text::steps_sentence(steps, r.ts, r.t0));
+    let mut out = format!("{}{name}: {}\n", read.read_as, text::steps_sentence(steps, r.ts, r.t0));
     let mut lines = vec![];
     for (i, s) in steps.iter().enumerate() {
         let (from, to) = (t(s.segment.start), t(s.segment.end));
@@ -212,8 +217,8 @@ fn stepped(
                 let mut j = text::json(d, rules);
                 j["file"] = json!(name);
                 j["step"] = step_json;
-                if let Some(i) = imported {
-                    j["import"] = import_json(i);
+                if let Some(i) = &read.import {
+                    j["import"] = i.clone();
                 }
                 lines.push(j);
                 out.push_str(&format!(

@@ -4,7 +4,6 @@
 
 use crate::Error;
 use crate::convert::{Input, floats, guarded, to_py};
-use crate::record::import_json;
 use boucwen_lab::identify::{self as lab, Method, Options, Structure, compare, families};
 use boucwen_lab::model::{Family, ModelFile, TermModel};
 use boucwen_lab::report::diagnosis::instability_text;
@@ -222,12 +221,13 @@ pub fn identify(
         drive_hz,
         invertible,
     };
-    let Input { record: r, imported } = input;
+    let import = input.import_json();
+    let Input { record: r, .. } = input;
     let name = r.source.clone();
     let (file, mut j) = guarded(py, "identify", || run(&r, given, families, &opts, &name))?;
     j["file"] = json!(name);
-    if let Some(i) = &imported {
-        j["import"] = import_json(i);
+    if let Some(i) = import {
+        j["import"] = i;
     }
     Ok(Model { file, report: Some(j) })
 }

@@ -4,92 +4,139 @@
 use crate::Error;
 use crate::convert::{guarded, to_py};
 use boucwen_lab::record::{
-    self, ColumnMap, ImportOptions, Imported, LengthUnit, TimeSource, TimeUnit, VoltUnit,
+    self, ColumnMap, ImportInfo, ImportOptions, Imported, LengthUnit, TimeSource, TimeUnit, VoltUnit,
 };
-use numpy::{PyArray1, ToPyArray};
+use numpy::{PyArray1, PyArrayMethods, PyUntypedArrayMethods};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 use std::path::PathBuf;
 
 /// A record as read: `t` (s), `u` (V), `y` (µm) and, for a tracking run, `d` (µm), each a
-/// 1-D float64 array; `ts` and `t0` (s); `source` (the file); `notes` (how the file was
-/// read, one line, as the commands print it after "read as") and `import_info` (the same as
-/// the `import` object of `boucwen diagnose --json`).
+/// 1-D float64 array, read-only (they are what the importer read, and what `identify(rec)`
+/// and `diagnose(rec)` use); `ts` and `t0` (s); `source` (the file); `notes` (how the file
+/// was read, one line, as the commands print it after "read as") and `import_info` (the same
+/// as the `import` object of `boucwen diagnose --json`).
 #[pyclass(module = "boucwen", frozen)]
 pub struct Record {
-    /// The record and how its file was read.
-    pub imported: Imported,
+    source: String,
+    ts: f64,
+    t0: f64,
+    u: Py<PyArray1<f64>>,
+    y: Py<PyArray1<f64>>,
+    d: Option<Py<PyArray1<f64>>>,
+    /// How the file was read.
+    pub info: ImportInfo,
+}
+
+impl Record {
+    /// The importer's record as arrays: its samples moved into NumPy, not copied.
+    fn new(py: Python<'_>, imported: Imported) -> PyResult<Self> {
+        let Imported { record: r, info } = imported;
+        let array = |v: Vec<f64>| -> PyResult<Py<PyArray1<f64>>> {
+            let a = PyArray1::from_vec(py, v);
+            let kwargs = PyDict::new(py);
+            kwargs.set_item("write", false)?;
+            a.call_method("setflags", (), Some(&kwargs))?;
+            Ok(a.unbind())
+        };
+        Ok(Record {
+            source: r.source,
+            ts: r.ts,
+            t0: r.t0,
+            u: array(r.u)?,
+            y: array(r.y)?,
+            d: r.d.map(array).transpose()?,
+            info,
+        })
+    }
+
+    /// The library's record (the samples copied; checked when the file was read).
+    pub fn to_lab(&self, py: Python<'_>) -> PyResult<record::Record> {
+        let v =
+            |a: &Py<PyArray1<f64>>| -> PyResult<Vec<f64>> { Ok(a.bind(py).readonly().as_slice()?.to_vec()) };
+        Ok(record::Record {
+            source: self.source.clone(),
+            ts: self.ts,
+            t0: self.t0,
+            u: v(&self.u)?,
+            y: v(&self.y)?,
+            d: self.d.as_ref().map(v).transpose()?,
+        })
+    }
+
+    /// Samples.
+    pub fn len(&self, py: Python<'_>) -> usize {
+        self.u.bind(py).len()
+    }
 }
 
 #[pymethods]
 impl Record {
-    /// Sample times `t0 + k·ts` (s).
+    /// Sample times `t0 + k·ts` (s), computed on each access.
     #[getter]
     fn t<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
-        let r = &self.imported.record;
-        PyArray1::from_vec(py, (0..r.len()).map(|k| r.time(k)).collect())
+        PyArray1::from_vec(py, (0..self.len(py)).map(|k| self.t0 + k as f64 * self.ts).collect())
     }
 
     /// The drive (V).
     #[getter]
     fn u<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
-        self.imported.record.u.to_pyarray(py)
+        self.u.bind(py).clone()
     }
 
     /// The output (µm).
     #[getter]
     fn y<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<f64>> {
-        self.imported.record.y.to_pyarray(py)
+        self.y.bind(py).clone()
     }
 
     /// The reference (µm) of a tracking run, else `None`.
     #[getter]
     fn d<'py>(&self, py: Python<'py>) -> Option<Bound<'py, PyArray1<f64>>> {
-        self.imported.record.d.as_ref().map(|d| d.to_pyarray(py))
+        self.d.as_ref().map(|d| d.bind(py).clone())
     }
 
     /// The sample interval (s).
     #[getter]
     fn ts(&self) -> f64 {
-        self.imported.record.ts
+        self.ts
     }
 
     /// The time of the first sample (s).
     #[getter]
     fn t0(&self) -> f64 {
-        self.imported.record.t0
+        self.t0
     }
 
     /// The file it was read from.
     #[getter]
     fn source(&self) -> &str {
-        &self.imported.record.source
+        &self.source
     }
 
     /// How the file was read, one line ("comma-separated, with a header; t = …").
     #[getter]
     fn notes(&self) -> String {
-        self.imported.info.describe()
+        self.info.describe()
     }
 
     /// How the file was read, as a dict (`import` in `boucwen diagnose --json`).
     #[getter]
     fn import_info(&self, py: Python<'_>) -> PyResult<Py<PyAny>> {
-        to_py(py, &import_json(&self.imported))
+        to_py(py, &import_json(&self.info, self.len(py), self.ts))
     }
 
-    fn __len__(&self) -> usize {
-        self.imported.record.len()
+    fn __len__(&self, py: Python<'_>) -> usize {
+        self.len(py)
     }
 
-    fn __repr__(&self) -> String {
-        let r = &self.imported.record;
+    fn __repr__(&self, py: Python<'_>) -> String {
         format!(
             "Record({:?}: {} samples every {} s from t0 = {} s)",
-            r.source,
-            r.len(),
-            record::for_people(r.ts),
-            record::for_people(r.t0)
+            self.source,
+            self.len(py),
+            record::for_people(self.ts),
+            record::for_people(self.t0)
         )
     }
 }
@@ -113,7 +160,7 @@ pub fn read_record(
 ) -> PyResult<Record> {
     let opts = options(columns, units, sample_rate, keep_spikes)?;
     let imported = guarded(py, "read_record", || record::import(&path, &opts).map_err(|e| e.to_string()))?;
-    Ok(Record { imported })
+    Record::new(py, imported)
 }
 
 /// The importer's options from `read_record`'s arguments (the flags' own parsers).
@@ -171,24 +218,24 @@ fn options(
 
 /// How the record was read, as the `import` object of `boucwen diagnose --json` and
 /// `identify --json` (the same fields as the command's; crates/py/tests compares them).
-pub fn import_json(i: &Imported) -> serde_json::Value {
+pub fn import_json(info: &ImportInfo, samples: usize, ts: f64) -> serde_json::Value {
     let columns: serde_json::Map<String, serde_json::Value> =
-        i.info.columns.iter().map(|(role, from)| (role.to_string(), serde_json::json!(from))).collect();
+        info.columns.iter().map(|(role, from)| (role.to_string(), serde_json::json!(from))).collect();
     serde_json::json!({
-        "separator": i.info.separator.name(),
-        "decimal_comma": i.info.decimal_comma,
-        "cut_short_line": i.info.cut_short,
-        "missing": i.info.missing.map(|m| serde_json::json!({ "count": m.count, "first_s": m.first_s })),
-        "preamble": i.info.preamble.map(|p| serde_json::json!({ "lines": p.lines, "table_line": p.table_line })),
-        "header": i.info.header,
+        "separator": info.separator.name(),
+        "decimal_comma": info.decimal_comma,
+        "cut_short_line": info.cut_short,
+        "missing": info.missing.map(|m| serde_json::json!({ "count": m.count, "first_s": m.first_s })),
+        "preamble": info.preamble.map(|p| serde_json::json!({ "lines": p.lines, "table_line": p.table_line })),
+        "header": info.header,
         "columns": columns,
-        "t_unit": i.info.t_unit.name(),
-        "u_unit": i.info.u_unit.name(),
-        "y_unit": i.info.y_unit.name(),
-        "sample_rate_hz": match i.info.time { TimeSource::SampleRate(hz) => Some(hz), TimeSource::Column(_) => None },
-        "samples": i.record.len(),
-        "ts_s": i.record.ts,
-        "spikes": i.info.spikes.as_ref().map(|s| serde_json::json!({
+        "t_unit": info.t_unit.name(),
+        "u_unit": info.u_unit.name(),
+        "y_unit": info.y_unit.name(),
+        "sample_rate_hz": match info.time { TimeSource::SampleRate(hz) => Some(hz), TimeSource::Column(_) => None },
+        "samples": samples,
+        "ts_s": ts,
+        "spikes": info.spikes.as_ref().map(|s| serde_json::json!({
             "count": s.count,
             "departure_um": s.departure_um,
             "first_s": s.first_s,

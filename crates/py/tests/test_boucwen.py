@@ -42,6 +42,10 @@ def test_read_record_arrays_and_notes(cli, benchmark, bench_record, bench_cli):
     np.testing.assert_allclose(r.y, rows[:, 2] * 1e6, rtol=1e-15)
     np.testing.assert_allclose(r.t, rows[:, 0], atol=1e-8)
     assert r.d is None and r.t0 == 0.0 and r.source == benchmark
+    # The importer's samples, moved into NumPy once and read-only: what identify(r) uses.
+    assert r.u is r.u and not r.u.flags.writeable
+    with pytest.raises(ValueError):
+        r.y[0] = 0.0
     # What the importer said: the command's line and the command's JSON.
     assert r.notes == 'comma-separated, with a header; t = "t", u = "u", y = "y" in m'
     text = cli.run("identify", benchmark, "--y-unit", "m", "--model", "linear").stdout
