@@ -12,6 +12,9 @@
 //!   `boucwen diagnose` does (less the printing). The records are simulated and written
 //!   before the timing.
 //!
+//! - `mimo/simulate/...`: one simulation of a MIMO model of the Fine Steering Mirror's size
+//!   (`mimo_simulate`).
+//!
 //! Before the timing, one run of each prints what it fitted or found.
 
 use boucwen_lab::design::closed_loop;
@@ -93,6 +96,56 @@ fn diagnoses(c: &mut Criterion) {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
+/// `mimo/simulate`: one simulation of a MIMO model of the Fine Steering Mirror's size (order
+/// 28, 3 inputs, 3 outputs, a hysteresis branch on the 3 inputs and the 14 modes) over one
+/// period of 8192 samples after a one-period warm-up (as the benchmark's metric runs it).
+/// The model is seeded, not fitted: the simulation's cost does not depend on the values.
+fn mimo_simulate(c: &mut Criterion) {
+    use boucwen_lab::mimo::hysteresis::Shape;
+    use boucwen_lab::mimo::linear::{ModalSs, Mode};
+    use boucwen_lab::mimo::model::{Branch, Channel, MimoModel, Source, Warmup};
+    use rand_core::{RngCore, SeedableRng};
+    let mut rng = rand_xoshiro::Xoshiro256PlusPlus::seed_from_u64(27);
+    let mut uni = move || (rng.next_u64() >> 11) as f64 / (1u64 << 53) as f64 - 0.5;
+    let (n, m, p, len) = (28, 3, 3, 8192);
+    let modes: Vec<Mode> = (0..n / 2)
+        .map(|i| {
+            let th = 0.1 + 0.2 * i as f64;
+            Mode::Pair { sigma: 0.99 * th.cos(), omega: 0.99 * th.sin() }
+        })
+        .collect();
+    let ss = ModalSs {
+        modes,
+        b: nalgebra::DMatrix::from_fn(n, m, |_, _| uni()),
+        c: nalgebra::DMatrix::from_fn(p, n, |_, _| uni()),
+        d: nalgebra::DMatrix::from_fn(p, m, |_, _| uni()),
+    };
+    let mut model = MimoModel::linear(&ss, 6400.0);
+    let sources: Vec<Source> =
+        (0..m).map(Source::Input).chain((0..n).step_by(2).map(Source::State)).collect();
+    let q = sources.len();
+    model.branch = Some(Branch {
+        channels: sources
+            .into_iter()
+            .map(|source| Channel { source, scale: 1.0, shape: Shape::symmetric(0.3) })
+            .collect(),
+        b0: model.b.clone(),
+        e: (0..n * q).map(|_| 0.01 * uni()).collect(),
+        f: (0..p * q).map(|_| 0.01 * uni()).collect(),
+    });
+    let u: Vec<f64> = (0..m * len).map(|_| uni()).collect();
+    let mut g = c.benchmark_group("mimo/simulate");
+    g.sample_size(20);
+    g.bench_function("order28-branch17-8192x2", |b| {
+        b.iter(|| black_box(model.simulate(black_box(&u), Warmup::Periods(1)).expect("simulation")))
+    });
+    let linear = MimoModel { branch: None, ..model.clone() };
+    g.bench_function("order28-linear-8192x2", |b| {
+        b.iter(|| black_box(linear.simulate(black_box(&u), Warmup::Periods(1)).expect("simulation")))
+    });
+    g.finish();
+}
+
 fn oscillator(c: &mut Criterion) {
     let path =
         std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data/bouc-wen-benchmark/train.csv");
@@ -124,5 +177,5 @@ fn oscillator(c: &mut Criterion) {
     g.finish();
 }
 
-criterion_group!(benches, fits, diagnoses, oscillator);
+criterion_group!(benches, fits, diagnoses, oscillator, mimo_simulate);
 criterion_main!(benches);

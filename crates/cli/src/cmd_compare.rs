@@ -31,6 +31,12 @@ pub struct CompareArgs {
 }
 
 pub fn run(a: CompareArgs) -> Result<(), String> {
+    if let Some(rec) = a.record.mimo(&a.data) {
+        if a.plot.is_some() || a.periodic {
+            return Err("--plot and --periodic are for records of one input and one output (a record of several is scored period by period in steady state)".into());
+        }
+        return crate::cmd_mimo::compare(&a.model, &rec?, a.json);
+    }
     let model = ModelFile::read(&a.model).map_err(|e| e.to_string())?;
     let imported = a.record.read(&a.data)?;
     let r = &imported.record;

@@ -251,6 +251,12 @@ pub fn run(a: DiagnoseArgs) -> Result<(), String> {
         return together(&a, &rules);
     }
     if let [path] = a.data.as_slice() {
+        if let Some(rec) = a.record.mimo(path) {
+            if a.rules.is_some() || a.realisations {
+                return Err("--rules and --realisations are for records of one input and one output".into());
+            }
+            return crate::cmd_mimo::diagnose(&rec?, a.json, a.report.as_deref());
+        }
         let out = one(&a, &rules, path, a.report.clone())?;
         print!("{out}");
         if let Some(dir) = &a.report {

@@ -68,6 +68,14 @@ pub struct IdentifyArgs {
     /// Output-error fit: accept only a loop the direct inverse (eqs. 16/17) can invert.
     #[arg(long)]
     invertible: bool,
+    /// Records of several inputs and outputs: candidate orders of the state-space model
+    /// (comma-separated; default 28), chosen on the realisation kept apart.
+    #[arg(long = "order", value_delimiter = ',', value_name = "N")]
+    orders: Vec<usize>,
+    /// Records of several inputs and outputs: fit every realisation (by default the last
+    /// realisation of every level is kept apart and the model scored on it).
+    #[arg(long)]
+    fit_all: bool,
     /// Write the model kept to this file (versioned JSON, for `compare` and `simulate
     /// --model`).
     #[arg(long, value_name = "MODEL.json")]
@@ -78,6 +86,25 @@ pub struct IdentifyArgs {
 }
 
 pub fn run(a: IdentifyArgs) -> Result<(), String> {
+    if let Some(rec) = a.record.mimo(&a.data) {
+        if !matches!(a.model, ModelKind::Extended | ModelKind::Linear)
+            || a.method == Method::Rls
+            || !a.harmonics.is_empty()
+        {
+            return Err("a record of several inputs and outputs takes --model extended (the hysteretic state-space model, the default) or linear".into());
+        }
+        let m = crate::cmd_mimo::IdentifyMimo {
+            linear: a.model == ModelKind::Linear,
+            orders: &a.orders,
+            fit_all: a.fit_all,
+            save: a.save.as_deref(),
+            json: a.json,
+        };
+        return crate::cmd_mimo::identify(&rec?, &m);
+    }
+    if !a.orders.is_empty() || a.fit_all {
+        return Err("--order and --fit-all are for records of several inputs and outputs".into());
+    }
     let name = a.data.display().to_string();
     let rules = Rules::default();
     let imported = a.record.read(&a.data)?;

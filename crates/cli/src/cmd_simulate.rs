@@ -48,9 +48,10 @@ pub fn run(a: SimulateArgs) -> anyhow::Result<()> {
         if a.json {
             println!("{}", serde_json::to_string(&s).context("JSON of the summary")?);
         } else {
+            let at = if s.ts_s.is_finite() { format!("at {} s", s.ts_s) } else { "(per sample)".into() };
             println!(
-                "{}: {} samples at {} s, y from {:.3} to {:.3} µm",
-                s.drive, s.samples, s.ts_s, s.y_min_um, s.y_max_um
+                "{}: {} samples {at}, y from {:.3} to {:.3} µm",
+                s.drive, s.samples, s.y_min_um, s.y_max_um
             );
             eprintln!("wrote {}", s.out);
         }

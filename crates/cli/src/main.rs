@@ -10,6 +10,7 @@ mod cmd_compare;
 mod cmd_diagnose;
 mod cmd_hil;
 mod cmd_identify;
+mod cmd_mimo;
 mod cmd_simulate;
 mod cmd_sweep;
 mod record_args;

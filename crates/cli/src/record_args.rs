@@ -1,6 +1,7 @@
 //! The flags every command that reads a record takes, and the one way to read it
 //! ([`boucwen_lab::record::import`]).
 
+use boucwen_lab::record::mimo::{MimoColumns, MimoOptions, MimoRecord};
 use boucwen_lab::record::{self, ColumnMap, ImportOptions, Imported, LengthUnit, TimeUnit, VoltUnit};
 use std::path::Path;
 
@@ -8,9 +9,10 @@ use std::path::Path;
 #[derive(clap::Args, Clone, Debug)]
 pub struct RecordArgs {
     /// Which column is which: t=NAME|N,u=NAME|N,y=NAME|N[,d=NAME|N] (names case-insensitive,
-    /// or positions from 1); needed for a file without a header, or with other names.
+    /// or positions from 1); needed for a file without a header, or with other names. Several
+    /// inputs and outputs: u=u1,u2,u3,y=y1,y2,y3.
     #[arg(long, value_name = "SPEC")]
-    columns: Option<ColumnMap>,
+    columns: Option<String>,
     /// The sample rate (Hz) of a record without a time column.
     #[arg(long, value_name = "HZ")]
     sample_rate: Option<f64>,
@@ -29,6 +31,10 @@ pub struct RecordArgs {
     /// the steady window found in the record).
     #[arg(long, value_name = "START:END")]
     window: Option<String>,
+    /// A record of several inputs and outputs from CSV: samples per period of its periodic
+    /// drive (default: the whole table is one period).
+    #[arg(long, value_name = "N")]
+    period_samples: Option<usize>,
     /// Keep isolated spikes of the output as read (by default a sample or two far from both
     /// its neighbours' cubic and their median, a sensor's dropout, is replaced and said so).
     #[arg(long)]
@@ -46,8 +52,12 @@ impl RecordArgs {
                 ));
             }
         }
+        let columns = match &self.columns {
+            Some(spec) => Some(spec.parse::<ColumnMap>().map_err(|e| e.to_string())?),
+            None => None,
+        };
         let opts = ImportOptions {
-            columns: self.columns.clone(),
+            columns,
             sample_rate_hz: self.sample_rate,
             t_unit: self.t_unit,
             u_unit: self.u_unit,
@@ -55,6 +65,44 @@ impl RecordArgs {
             keep_spikes: self.keep_spikes,
         };
         record::import(path, &opts).map_err(|e| e.to_string())
+    }
+
+    /// A record of several inputs and outputs, when `path` is one: a folder or a NumPy file
+    /// (`u_TAG.npy`/`y_TAG.npy`, `.npz`), or a CSV whose `--columns` name several inputs or
+    /// outputs. `None`: a record of one input and one output ([`Self::read`]).
+    pub fn mimo(&self, path: &Path) -> Option<Result<MimoRecord, String>> {
+        let columns = match self.columns.as_deref().map(str::parse::<MimoColumns>) {
+            Some(Ok(c)) if c.is_mimo() => Some(c),
+            _ if MimoRecord::is_numpy(path) => None,
+            _ => return None,
+        };
+        Some(self.read_mimo(path, columns))
+    }
+
+    fn read_mimo(&self, path: &Path, columns: Option<MimoColumns>) -> Result<MimoRecord, String> {
+        if self.window.is_some() || self.t_unit.is_some() || self.keep_spikes {
+            return Err(format!(
+                "{}: --window, --t-unit and --keep-spikes are for records of one input and one output",
+                path.display()
+            ));
+        }
+        if let Some(hz) = self.sample_rate.filter(|hz| !(hz.is_finite() && *hz > 0.0)) {
+            return Err(format!("--sample-rate {}: must be a positive number of Hz", record::for_people(hz)));
+        }
+        let opts = MimoOptions {
+            sample_rate_hz: self.sample_rate,
+            u_unit: self.u_unit.unwrap_or(VoltUnit::V),
+            y_unit: self.y_unit.unwrap_or(LengthUnit::Um),
+            infer_y_unit: self.y_unit.is_none(),
+            period_samples: self.period_samples,
+            only: None,
+            columns,
+        };
+        let rec = MimoRecord::read(path, &opts).map_err(|e| e.to_string())?;
+        for note in &rec.notes {
+            eprintln!("{}: {note}", rec.source);
+        }
+        Ok(rec)
     }
 
     /// Whether `--window` was given.

@@ -27,6 +27,7 @@ pub mod fit;
 #[cfg(feature = "fixtures")]
 pub mod fixtures;
 pub mod identify;
+pub mod mimo;
 pub mod model;
 pub mod record;
 pub mod report;

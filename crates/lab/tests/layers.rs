@@ -11,12 +11,13 @@ use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
 
 /// The rooms, bottom first: each may use the rooms before it in this list.
-const ROOMS: [&str; 11] = [
+const ROOMS: [&str; 12] = [
     "record",
     "rules",
     "signal",
     "model",
     "fit",
+    "mimo",
     "diagnose",
     "identify",
     "design",

@@ -5,6 +5,7 @@
 //! scenario's. The record (`t,u,y`) is written atomically.
 
 use crate::design::closed_loop;
+use crate::mimo::model::Warmup;
 use crate::model::{ModelError, ModelFile, ModelFileError};
 use crate::record::{Record, RecordError};
 use crate::signal::analysis;
@@ -162,7 +163,7 @@ pub struct Summary {
     pub drive: String,
     /// Samples in the record.
     pub samples: usize,
-    /// Sample interval, s.
+    /// Sample interval, s (NaN, `null` in JSON, for a model fitted without a sample rate).
     pub ts_s: f64,
     /// Lowest output, µm.
     pub y_min_um: f64,
@@ -179,7 +180,9 @@ pub fn run(scenario: &Scenario, drive: &Drive, out: &Path) -> Result<Summary, Si
     let ts = scenario.sampling.ts_s;
     let u = match drive {
         Drive::Sine { freq_hz, amplitude_v, seconds } => sine_drive(*freq_hz, *amplitude_v, *seconds, ts)?,
-        Drive::Column { path, name } => column_drive(path, name, ts, "the virtual bimorph", SCENARIO_HINT)?,
+        Drive::Column { path, name } => {
+            column_drive(path, name, Some(ts), "the virtual bimorph", SCENARIO_HINT)?
+        }
     };
     let y = Bimorph::new(scenario)?.run(&u)?;
     let record = Record::new(&out.display().to_string(), 0.0, ts, u, y, None)?;
@@ -233,13 +236,21 @@ const SCENARIO_HINT: &str = "resample the drive or set [sampling] in the scenari
 /// Runs the model of the file `model` on the drive column `name` of `input` and writes its
 /// rows (`t` if the input has it, else `k·Ts`) with the drive as `u` and the prediction as
 /// `y [um]` to `out`, atomically.
+///
+/// A model of several inputs and outputs (family `"mimo"`, [`crate::mimo::MimoModelFile`])
+/// takes its drives from the columns `name` lists, comma-separated (`u1,u2,u3`; `u` stands
+/// for `u1` to `um`), runs from rest and writes `t`, the drives and `y1 [um]` … `yp [um]`.
 pub fn run_model(model: &Path, input: &Path, name: &str, out: &Path) -> Result<Summary, SimulateError> {
+    let text = std::fs::read_to_string(model).unwrap_or_default();
+    if crate::mimo::file::is_mimo(&text) {
+        return run_mimo_model(model, input, name, out);
+    }
     let m = ModelFile::read(model).map_err(SimulateError::ModelFile)?;
     let ts = m.ts_s;
     let u = column_drive(
         input,
         name,
-        ts,
+        Some(ts),
         "the model",
         "resample the drive; the model was fitted at this interval",
     )?;
@@ -261,12 +272,127 @@ pub fn run_model(model: &Path, input: &Path, name: &str, out: &Path) -> Result<S
     })
 }
 
+/// Two periods of a drive agree when the RMS of their difference is below this fraction of
+/// the drive's RMS (the Fine Steering Mirror's measured inputs: 0.04 %).
+pub const PERIOD_TOLERANCE: f64 = 0.01;
+
+/// The drives cut into runs of agreeing periods of `n` samples: each run's periods agree with
+/// its first within [`PERIOD_TOLERANCE`] on every channel (several realisations one after
+/// the other are several runs). `None` when the length is not a whole number of periods.
+fn periodic_runs(drives: &[Vec<f64>], n: usize) -> Option<Vec<std::ops::Range<usize>>> {
+    let len = drives.first()?.len();
+    if n == 0 || len == 0 || len % n != 0 {
+        return None;
+    }
+    let ms = |v: &mut dyn Iterator<Item = f64>| v.map(|x| x * x).sum::<f64>();
+    let agree = |a: usize, b: usize| {
+        drives.iter().all(|d| {
+            let total = ms(&mut d[a..a + n].iter().copied());
+            let diff = ms(&mut d[a..a + n].iter().zip(&d[b..b + n]).map(|(x, y)| x - y));
+            diff <= PERIOD_TOLERANCE * PERIOD_TOLERANCE * total
+        })
+    };
+    let mut runs: Vec<std::ops::Range<usize>> = Vec::new();
+    for start in (0..len).step_by(n) {
+        match runs.last_mut() {
+            Some(r) if agree(r.start, start) => r.end = start + n,
+            _ => runs.push(start..start + n),
+        }
+    }
+    Some(runs)
+}
+
+/// [`run_model`] for a model of several inputs and outputs.
+///
+/// A model fitted without a sample rate takes the drive's rows as its samples, whatever its
+/// time column says; the output keeps the drive's `t` column when it has one. A drive of whole
+/// periods of the model's training period is periodic: cut into runs of agreeing periods
+/// (within [`PERIOD_TOLERANCE`]; one period counts; realisations written one after the other
+/// are separate runs), each run is simulated once before its written pass, so the output is
+/// each run's periodic steady state. Any other drive runs from rest.
+fn run_mimo_model(model: &Path, input: &Path, names: &str, out: &Path) -> Result<Summary, SimulateError> {
+    let file = crate::mimo::MimoModelFile::read(model).map_err(SimulateError::ModelFile)?;
+    let m = file.model;
+    let ts = if file.rate_given { Some(1.0 / m.sample_rate_hz) } else { None };
+    let names: Vec<String> = if names == "u" {
+        (1..=m.inputs).map(|i| format!("u{i}")).collect()
+    } else {
+        names.split(',').map(|n| n.trim().to_string()).collect()
+    };
+    if names.len() != m.inputs {
+        return Err(SimulateError::File {
+            file: input.display().to_string(),
+            line: None,
+            what: format!(
+                "{} drive columns ({}) for a model of {} inputs",
+                names.len(),
+                names.join(", "),
+                m.inputs
+            ),
+        });
+    }
+    let hint = "resample the drive; the model was fitted at this interval";
+    let drives =
+        names.iter().map(|n| column_drive(input, n, ts, "the model", hint)).collect::<Result<Vec<_>, _>>()?;
+    let len = drives[0].len();
+    let t = match column_drive(input, "t", ts, "the model", hint) {
+        Ok(t) => t,
+        Err(_) => (0..len).map(|k| k as f64 * ts.unwrap_or(1.0)).collect(),
+    };
+    let runs = file.period_samples.and_then(|n| periodic_runs(&drives, n));
+    let periodic = runs.is_some();
+    let (runs, warmup) = match runs {
+        Some(r) => (r, Warmup::Periods(1)),
+        None => (std::iter::once(0..len).collect(), Warmup::Rest),
+    };
+    let mut y = vec![0.0; m.outputs * len];
+    for r in &runs {
+        let u: Vec<f64> = drives.iter().flat_map(|d| d[r.clone()].iter().copied()).collect();
+        let yr = m.simulate(&u, warmup).map_err(|e| SimulateError::File {
+            file: model.display().to_string(),
+            line: None,
+            what: e.to_string(),
+        })?;
+        for o in 0..m.outputs {
+            y[o * len + r.start..o * len + r.end].copy_from_slice(&yr[o * r.len()..(o + 1) * r.len()]);
+        }
+    }
+    let y_names: Vec<String> = (1..=m.outputs).map(|o| format!("y{o} [um]")).collect();
+    let mut cols: Vec<(&str, &[f64])> = vec![("t", &t)];
+    cols.extend(names.iter().zip(&drives).map(|(n, d)| (n.as_str(), d.as_slice())));
+    cols.extend(y_names.iter().enumerate().map(|(o, n)| (n.as_str(), &y[o * len..(o + 1) * len])));
+    crate::record::write_columns(out, &cols)?;
+    let (lo, hi) = crate::signal::analysis::extent(&y);
+    Ok(Summary {
+        out: out.display().to_string(),
+        drive: format!(
+            "{}:{} through a {}×{} model of order {} ({})",
+            input.display(),
+            names.join(","),
+            m.outputs,
+            m.inputs,
+            m.order(),
+            if periodic {
+                format!("{} run(s) of whole periods, each in its steady state", runs.len())
+            } else {
+                "from rest".to_string()
+            }
+        ),
+        samples: len,
+        ts_s: ts.unwrap_or(f64::NAN),
+        y_min_um: lo,
+        y_max_um: hi,
+        harmonics: vec![],
+    })
+}
+
 /// The drive column `name` of a CSV file for `who` (what runs it); `ts` is its sample
-/// interval, which a `t` column must match (within 1 %), else the error says `hint`.
+/// interval, which a `t` column must match (within 1 %), else the error says `hint` (`None`:
+/// any interval).
 pub fn column_drive(
     path: &Path,
     name: &str,
-    ts: f64,
+    ts: Option<f64>,
     who: &str,
     hint: &str,
 ) -> Result<Vec<f64>, SimulateError> {
@@ -325,7 +451,7 @@ pub fn column_drive(
     if u.len() < 2 {
         return Err(bad(None, format!("{} samples, at least 2 needed", u.len())));
     }
-    if t.len() >= 2 {
+    if let (true, Some(ts)) = (t.len() >= 2, ts) {
         let file_ts = (t[t.len() - 1] - t[0]) / (t.len() - 1) as f64;
         if ((file_ts - ts) / ts).abs() > 0.01 {
             return Err(bad(None, format!("sampled every {file_ts} s, {who} every {ts} s ({hint})")));
@@ -349,24 +475,26 @@ mod tests {
         let p = tmp("drive.csv");
         std::fs::write(&p, "# a comment\nt,v\n0,0.5\n0.001,-0.25\n0.002,1\n").unwrap();
         assert_eq!(
-            column_drive(&p, "v", 1e-3, "the virtual bimorph", SCENARIO_HINT).unwrap(),
+            column_drive(&p, "v", Some(1e-3), "the virtual bimorph", SCENARIO_HINT).unwrap(),
             vec![0.5, -0.25, 1.0]
         );
-        let e = column_drive(&p, "v", 2e-3, "the virtual bimorph", SCENARIO_HINT).unwrap_err().to_string();
+        let e =
+            column_drive(&p, "v", Some(2e-3), "the virtual bimorph", SCENARIO_HINT).unwrap_err().to_string();
         assert!(e.contains("sampled every 0.001 s"), "{e}");
         std::fs::write(&p, "t,v\n0,0\n0.001,2000\n").unwrap();
-        let e = column_drive(&p, "v", 1e-3, "the virtual bimorph", SCENARIO_HINT).unwrap_err().to_string();
+        let e =
+            column_drive(&p, "v", Some(1e-3), "the virtual bimorph", SCENARIO_HINT).unwrap_err().to_string();
         assert_eq!(e, format!("{}:3: column \"v\": 2000 V is beyond ±1000 V", p.display()));
         std::fs::write(&p, "t,v\n0,0\n0,1\n").unwrap();
         assert!(
-            column_drive(&p, "v", 1e-3, "the virtual bimorph", SCENARIO_HINT)
+            column_drive(&p, "v", Some(1e-3), "the virtual bimorph", SCENARIO_HINT)
                 .unwrap_err()
                 .to_string()
                 .ends_with(":3: time 0 does not increase")
         );
         std::fs::write(&p, "1,2\n").unwrap();
         assert!(
-            column_drive(&p, "v", 1e-3, "the virtual bimorph", SCENARIO_HINT)
+            column_drive(&p, "v", Some(1e-3), "the virtual bimorph", SCENARIO_HINT)
                 .unwrap_err()
                 .to_string()
                 .contains(":1: no header row")

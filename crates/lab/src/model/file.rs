@@ -214,6 +214,9 @@ impl ModelFile {
             Some(n) => return Err(format!("\"version\" is {n}; expected {VERSION}")),
             None => return Err(format!("no \"version\" (expected {VERSION})")),
         }
+        if v.get("family").and_then(|f| f.as_str()) == Some("mimo") {
+            return Err("\"family\" is \"mimo\": a model of several inputs and outputs (boucwen_lab::mimo::MimoModelFile reads it)".into());
+        }
         let h: Header = serde_json::from_value(v).map_err(|e| format!("{e}"))?;
         if !(h.ts_s.is_finite() && h.ts_s > 0.0 && h.ts_s < 1e3) {
             return Err(format!("\"ts_s\" is {}: a sample interval in seconds, > 0", h.ts_s));
@@ -252,7 +255,7 @@ impl ModelFile {
             }
             other => {
                 return Err(format!(
-                    "\"family\" is {:?}: one of \"actuator\", \"oscillator\", \"linear\"",
+                    "\"family\" is {:?}: one of \"actuator\", \"oscillator\", \"linear\", \"mimo\"",
                     crate::record::excerpt(other)
                 ));
             }

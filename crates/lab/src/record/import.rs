@@ -824,7 +824,7 @@ fn found_list(names: Option<&[String]>, count: usize) -> String {
 
 /// The unit that brings an output span (µm, as read) between [`MIN_SPAN_UM`] and
 /// [`MAX_SPAN_UM`], nearest the middle of that range on a log scale, if one does.
-fn likely_unit(span_as_read: f64, read_in: LengthUnit) -> Option<LengthUnit> {
+pub(crate) fn likely_unit(span_as_read: f64, read_in: LengthUnit) -> Option<LengthUnit> {
     let raw = span_as_read / read_in.micrometres();
     let mid = (MIN_SPAN_UM * MAX_SPAN_UM).sqrt().ln();
     LengthUnit::ALL

@@ -108,6 +108,8 @@
 
 mod error;
 mod import;
+pub mod mimo;
+pub mod npy;
 mod replay;
 mod select;
 pub mod spikes;

@@ -5,6 +5,7 @@
 
 pub mod diagnosis;
 pub mod identify;
+pub mod mimo;
 pub mod plot;
 
 use crate::diagnose::Diagnosis;
