@@ -18,7 +18,7 @@
 
 use super::model::MimoModel;
 use crate::model::ModelFileError;
-use crate::model::file::{FORMAT, MAX_BYTES, VERSION};
+use crate::model::file::{FORMAT, VERSION};
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 
@@ -109,14 +109,7 @@ impl MimoModelFile {
 
     /// Reads and checks a file.
     pub fn read(path: &Path) -> Result<Self, ModelFileError> {
-        let file = path.display().to_string();
-        let err = |what: String| ModelFileError { file: file.clone(), what };
-        let len = std::fs::metadata(path).map_err(|e| err(format!("cannot read it: {e}")))?.len();
-        if len > MAX_BYTES {
-            return Err(err(format!("{len} bytes; a model file is at most {MAX_BYTES}")));
-        }
-        let text = std::fs::read_to_string(path).map_err(|e| err(format!("cannot read it: {e}")))?;
-        Self::parse(&text).map_err(err)
+        crate::model::file::read_with(path, Self::parse)
     }
 
     /// Parses and checks a file's text; the error says what is wrong and where.

@@ -55,6 +55,19 @@ pub struct ModelFile {
     pub held_out_rms_um: Option<f64>,
 }
 
+/// Reads a model file of at most [`MAX_BYTES`] and parses its text with `parse`; every error
+/// names the file (the model files of one and of several inputs and outputs).
+pub fn read_with<T>(path: &Path, parse: impl Fn(&str) -> Result<T, String>) -> Result<T, ModelFileError> {
+    let file = path.display().to_string();
+    let err = |what: String| ModelFileError { file: file.clone(), what };
+    let len = std::fs::metadata(path).map_err(|e| err(format!("cannot read it: {e}")))?.len();
+    if len > MAX_BYTES {
+        return Err(err(format!("{len} bytes; a model file is at most {MAX_BYTES}")));
+    }
+    let text = std::fs::read_to_string(path).map_err(|e| err(format!("cannot read it: {e}")))?;
+    parse(&text).map_err(err)
+}
+
 /// Why a model file was refused.
 #[derive(Debug)]
 pub struct ModelFileError {
@@ -180,14 +193,7 @@ impl ModelFile {
 
     /// Reads and checks a model file.
     pub fn read(path: &Path) -> Result<Self, ModelFileError> {
-        let file = path.display().to_string();
-        let err = |what: String| ModelFileError { file: file.clone(), what };
-        let len = std::fs::metadata(path).map_err(|e| err(format!("cannot read it: {e}")))?.len();
-        if len > MAX_BYTES {
-            return Err(err(format!("{len} bytes; a model file is at most {MAX_BYTES}")));
-        }
-        let text = std::fs::read_to_string(path).map_err(|e| err(format!("cannot read it: {e}")))?;
-        Self::parse(&text).map_err(err)
+        read_with(path, Self::parse)
     }
 
     /// Parses and checks a model file's text; the error says what is wrong and where.
