@@ -18,7 +18,7 @@
 
 use super::model::MimoModel;
 use crate::model::ModelFileError;
-use crate::model::file::{FORMAT, VERSION};
+use crate::model::file::{FORMAT, Units, VERSION};
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 
@@ -39,13 +39,6 @@ pub struct MimoModelFile {
     pub rate_given: bool,
     /// Samples per period of the periodic drives it was fitted on.
     pub period_samples: Option<usize>,
-}
-
-#[derive(Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-struct Units {
-    u: String,
-    y: String,
 }
 
 #[derive(Serialize, Deserialize)]

@@ -85,11 +85,12 @@ impl fmt::Display for ModelFileError {
 
 impl std::error::Error for ModelFileError {}
 
+/// The units a model runs in (`units` of every model file).
 #[derive(Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
-struct Units {
-    u: String,
-    y: String,
+pub(crate) struct Units {
+    pub(crate) u: String,
+    pub(crate) y: String,
 }
 
 #[derive(Serialize, Deserialize)]
