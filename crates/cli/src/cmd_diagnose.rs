@@ -208,29 +208,7 @@ fn together(a: &DiagnoseArgs, rules: &Rules) -> Result<(), String> {
 
 /// How the record was read, for the JSON.
 pub fn import_json(i: &Imported) -> serde_json::Value {
-    use boucwen_lab::record::TimeSource;
-    let columns: serde_json::Map<String, serde_json::Value> =
-        i.info.columns.iter().map(|(role, from)| (role.to_string(), serde_json::json!(from))).collect();
-    serde_json::json!({
-        "separator": i.info.separator.name(),
-        "decimal_comma": i.info.decimal_comma,
-        "cut_short_line": i.info.cut_short,
-        "missing": i.info.missing.map(|m| serde_json::json!({ "count": m.count, "first_s": m.first_s })),
-        "preamble": i.info.preamble.map(|p| serde_json::json!({ "lines": p.lines, "table_line": p.table_line })),
-        "header": i.info.header,
-        "columns": columns,
-        "t_unit": i.info.t_unit.name(),
-        "u_unit": i.info.u_unit.name(),
-        "y_unit": i.info.y_unit.name(),
-        "sample_rate_hz": match i.info.time { TimeSource::SampleRate(hz) => Some(hz), TimeSource::Column(_) => None },
-        "samples": i.record.len(),
-        "ts_s": i.record.ts,
-        "spikes": i.info.spikes.as_ref().map(|s| serde_json::json!({
-            "count": s.count,
-            "departure_um": s.departure_um,
-            "first_s": s.first_s,
-        })),
-    })
+    report::import_json(&i.info, i.record.len(), i.record.ts)
 }
 
 /// The rules: the defaults, or a file's overrides of them.

@@ -4,7 +4,7 @@
 use crate::Error;
 use crate::convert::{guarded, to_py};
 use boucwen_lab::record::{
-    self, ColumnMap, ImportInfo, ImportOptions, Imported, LengthUnit, TimeSource, TimeUnit, VoltUnit,
+    self, ColumnMap, ImportInfo, ImportOptions, Imported, LengthUnit, TimeUnit, VoltUnit,
 };
 use numpy::{PyArray1, PyArrayMethods, PyUntypedArrayMethods};
 use pyo3::prelude::*;
@@ -216,29 +216,4 @@ fn options(
     Ok(opts)
 }
 
-/// How the record was read, as the `import` object of `boucwen diagnose --json` and
-/// `identify --json` (the same fields as the command's; crates/py/tests compares them).
-pub fn import_json(info: &ImportInfo, samples: usize, ts: f64) -> serde_json::Value {
-    let columns: serde_json::Map<String, serde_json::Value> =
-        info.columns.iter().map(|(role, from)| (role.to_string(), serde_json::json!(from))).collect();
-    serde_json::json!({
-        "separator": info.separator.name(),
-        "decimal_comma": info.decimal_comma,
-        "cut_short_line": info.cut_short,
-        "missing": info.missing.map(|m| serde_json::json!({ "count": m.count, "first_s": m.first_s })),
-        "preamble": info.preamble.map(|p| serde_json::json!({ "lines": p.lines, "table_line": p.table_line })),
-        "header": info.header,
-        "columns": columns,
-        "t_unit": info.t_unit.name(),
-        "u_unit": info.u_unit.name(),
-        "y_unit": info.y_unit.name(),
-        "sample_rate_hz": match info.time { TimeSource::SampleRate(hz) => Some(hz), TimeSource::Column(_) => None },
-        "samples": samples,
-        "ts_s": ts,
-        "spikes": info.spikes.as_ref().map(|s| serde_json::json!({
-            "count": s.count,
-            "departure_um": s.departure_um,
-            "first_s": s.first_s,
-        })),
-    })
-}
+pub use boucwen_lab::report::import_json;

@@ -362,3 +362,31 @@ pub fn periodic_lines(d: &PeriodicDiagnosis) -> Chart {
     c.x_range = Some((0.0, top.min(0.5 / d.ts).max(l.f0_hz)));
     c
 }
+
+/// How a record was read, as the `import` object of `diagnose --json` and `identify --json`
+/// (the command line's and the Python module's).
+pub fn import_json(info: &crate::record::ImportInfo, samples: usize, ts: f64) -> serde_json::Value {
+    use crate::record::TimeSource;
+    let columns: serde_json::Map<String, serde_json::Value> =
+        info.columns.iter().map(|(role, from)| (role.to_string(), serde_json::json!(from))).collect();
+    serde_json::json!({
+        "separator": info.separator.name(),
+        "decimal_comma": info.decimal_comma,
+        "cut_short_line": info.cut_short,
+        "missing": info.missing.map(|m| serde_json::json!({ "count": m.count, "first_s": m.first_s })),
+        "preamble": info.preamble.map(|p| serde_json::json!({ "lines": p.lines, "table_line": p.table_line })),
+        "header": info.header,
+        "columns": columns,
+        "t_unit": info.t_unit.name(),
+        "u_unit": info.u_unit.name(),
+        "y_unit": info.y_unit.name(),
+        "sample_rate_hz": match info.time { TimeSource::SampleRate(hz) => Some(hz), TimeSource::Column(_) => None },
+        "samples": samples,
+        "ts_s": ts,
+        "spikes": info.spikes.as_ref().map(|s| serde_json::json!({
+            "count": s.count,
+            "departure_um": s.departure_um,
+            "first_s": s.first_s,
+        })),
+    })
+}
